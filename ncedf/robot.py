@@ -1,0 +1,269 @@
+"""Piecewise-constant-curvature (PCC) model of a multi-link continuum robot.
+
+Paper Sec. III. A link is an inextensible backbone of length ``L`` actuated by
+three chambers at radius ``r``; its state is the three chamber arc lengths.
+A robot state is the arc lengths of all links, shape ``(M, 3)`` in metres, each
+row summing to ``3 L``.
+
+Everything here is computed from the *bending vector* ``(a, b) = theta (cos phi,
+sin phi)``, which is linear in the arc lengths. The link transform and the
+forward kinematics are smooth functions of ``(a, b)`` (they depend on ``theta``
+only through even functions such as ``sin(theta)/theta``), so values and
+gradients are finite at ``theta = 0``, the straight initial state.
+
+Chamber ``j`` (``j = 0, 1, 2``) has arc length
+``l_j = L - r theta cos(phi + 2 pi j / 3)``, the inverse of paper eq. (1).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import jax.numpy as jnp
+import numpy as np
+
+SQRT3 = math.sqrt(3.0)
+CHAMBER_ANGLES = (0.0, 2.0 * math.pi / 3.0, 4.0 * math.pi / 3.0)
+# Below this theta^2 the even functions of theta use their Taylor series.
+_SMALL_THETA_SQ = 1e-4
+
+
+class InvalidStateError(ValueError):
+    """A robot state (arc lengths) that violates the robot's limits."""
+
+
+@dataclasses.dataclass(frozen=True)
+class RobotSpec:
+    """Geometry and limits of an ``n_links``-link continuum robot.
+
+    Attributes:
+      n_links: number of links M (>= 1).
+      length: backbone length L of every link, m.
+      radius: link radius r (chambers sit at r; the tube radius), m.
+      l_min, l_max: chamber arc-length limits, m; ``l_min < L < l_max``.
+    """
+
+    n_links: int
+    length: float = 2.0
+    radius: float = 0.2
+    l_min: float = 1.6
+    l_max: float = 2.4
+
+    def __post_init__(self):
+        if isinstance(self.n_links, bool) or not isinstance(self.n_links, (int, np.integer)):
+            raise ValueError(f"n_links must be an integer, got {self.n_links!r}")
+        if self.n_links < 1:
+            raise ValueError(f"n_links must be >= 1, got {self.n_links}")
+        for name in ("length", "radius", "l_min", "l_max"):
+            value = getattr(self, name)
+            if not isinstance(value, (int, float, np.floating, np.integer)) or not math.isfinite(value):
+                raise ValueError(f"{name} must be a finite number, got {value!r}")
+        if self.radius <= 0:
+            raise ValueError(f"radius must be > 0, got {self.radius}")
+        if not 0 < self.l_min < self.length < self.l_max:
+            raise ValueError(
+                f"need 0 < l_min < length < l_max, got l_min={self.l_min}, "
+                f"length={self.length}, l_max={self.l_max}"
+            )
+
+    def max_bend(self) -> float:
+        """Largest bending angle theta (rad) the arc-length limits admit."""
+        # Every chamber deviates by r theta |cos(.)| <= dl; the worst phi has
+        # max_j |cos(phi + 2 pi j / 3)| = sqrt(3) / 2.
+        dl = min(self.length - self.l_min, self.l_max - self.length)
+        return dl / (self.radius * SQRT3 / 2.0)
+
+    def straight_state(self) -> jnp.ndarray:
+        """The straight initial state: every arc length = L, shape (M, 3)."""
+        return jnp.full((self.n_links, 3), self.length)
+
+
+def bending_vector(arc: jnp.ndarray, spec: RobotSpec) -> jnp.ndarray:
+    """Bending vector ``theta (cos phi, sin phi)`` of each link, linear in arc.
+
+    Args:
+      arc: (..., 3) chamber arc lengths, m.
+    Returns:
+      (..., 2) array ``(a, b)``; ``theta = |(a, b)|``, ``phi = atan2(b, a)``.
+    """
+    l1, l2, l3 = arc[..., 0], arc[..., 1], arc[..., 2]
+    a = (l2 + l3 - 2.0 * l1) / (3.0 * spec.radius)
+    b = (l2 - l3) / (SQRT3 * spec.radius)
+    return jnp.stack([a, b], axis=-1)
+
+
+def _safe_norm(v: jnp.ndarray) -> jnp.ndarray:
+    """Euclidean norm over the last axis with a zero (not NaN) gradient at 0."""
+    sq = jnp.sum(v * v, axis=-1)
+    nonzero = sq > 0
+    return jnp.where(nonzero, jnp.sqrt(jnp.where(nonzero, sq, 1.0)), 0.0)
+
+
+def arc_lengths_to_config(arc: jnp.ndarray, spec: RobotSpec) -> tuple[jnp.ndarray, jnp.ndarray]:
+    """Paper eq. (1): arc lengths -> bending angle and bending-plane angle.
+
+    Args:
+      arc: (..., 3) chamber arc lengths, m.
+    Returns:
+      theta (...,) in [0, pi], rad; phi (...,) in [-pi, pi), rad (0 where theta = 0).
+    """
+    ab = bending_vector(arc, spec)
+    theta = _safe_norm(ab)
+    straight = theta == 0
+    a = jnp.where(straight, 1.0, ab[..., 0])
+    b = jnp.where(straight, 0.0, ab[..., 1])
+    phi = jnp.arctan2(b, a)
+    phi = jnp.where(phi >= jnp.pi, phi - 2.0 * jnp.pi, phi)
+    return theta, phi
+
+
+def config_to_arc_lengths(theta: jnp.ndarray, phi: jnp.ndarray, spec: RobotSpec) -> jnp.ndarray:
+    """Inverse of paper eq. (1).
+
+    Args:
+      theta: (...,) bending angle, rad.  phi: (...,) bending-plane angle, rad.
+    Returns:
+      (..., 3) arc lengths ``L - r theta cos(phi + 2 pi j / 3)``, m.
+    """
+    theta = jnp.asarray(theta)
+    phi = jnp.asarray(phi)
+    angles = jnp.asarray(CHAMBER_ANGLES, dtype=jnp.result_type(phi, float))
+    return spec.length - spec.radius * theta[..., None] * jnp.cos(phi[..., None] + angles)
+
+
+def _even_series(theta_sq: jnp.ndarray):
+    """``sin(t)/t``, ``(1 - cos t)/t^2`` and ``cos t`` as smooth functions of ``t^2``."""
+    small = theta_sq < _SMALL_THETA_SQ
+    safe_sq = jnp.where(small, 1.0, theta_sq)
+    t = jnp.sqrt(safe_sq)
+    sinc = jnp.where(small, 1.0 - theta_sq / 6.0 + theta_sq**2 / 120.0, jnp.sin(t) / t)
+    versc = jnp.where(small, 0.5 - theta_sq / 24.0 + theta_sq**2 / 720.0, (1.0 - jnp.cos(t)) / safe_sq)
+    cos = jnp.where(small, 1.0 - theta_sq / 2.0 + theta_sq**2 / 24.0, jnp.cos(t))
+    return sinc, versc, cos
+
+
+def link_transform_from_bending(ab: jnp.ndarray, length: float) -> jnp.ndarray:
+    """Homogeneous transform from the base to the end of a PCC link.
+
+    The rotation is ``Rz(phi) Ry(theta) Rz(-phi)``: a rotation by theta about
+    the axis ``(-sin phi, cos phi, 0)``. The end point is
+    ``L ((1 - cos t)/t cos phi, (1 - cos t)/t sin phi, sin t / t)``.
+
+    Args:
+      ab: (..., 2) bending vector ``theta (cos phi, sin phi)``.
+      length: backbone length L, m.
+    Returns:
+      (..., 4, 4) transforms.
+    """
+    a, b = ab[..., 0], ab[..., 1]
+    sinc, versc, cos = _even_series(a * a + b * b)
+    # Rodrigues with w = (-b, a, 0): R = I + sinc [w]x + versc [w]x^2.
+    r00 = 1.0 - versc * a * a
+    r01 = -versc * a * b
+    r02 = sinc * a
+    r11 = 1.0 - versc * b * b
+    r12 = sinc * b
+    zero = jnp.zeros_like(a)
+    one = jnp.ones_like(a)
+    rows = [
+        [r00, r01, r02, length * versc * a],
+        [r01, r11, r12, length * versc * b],
+        [-r02, -r12, cos, length * sinc],
+        [zero, zero, zero, one],
+    ]
+    return jnp.stack([jnp.stack(row, axis=-1) for row in rows], axis=-2)
+
+
+def link_transform(theta: jnp.ndarray, phi: jnp.ndarray, spec: RobotSpec) -> jnp.ndarray:
+    """Transform from the base to the end of a link with configuration (theta, phi).
+
+    Args:
+      theta: (...,) bending angle, rad.  phi: (...,) bending-plane angle, rad.
+    Returns:
+      (..., 4, 4) homogeneous transforms (paper: T_i).
+    """
+    theta = jnp.asarray(theta)
+    phi = jnp.asarray(phi)
+    ab = jnp.stack([theta * jnp.cos(phi), theta * jnp.sin(phi)], axis=-1)
+    return link_transform_from_bending(ab, spec.length)
+
+
+def link_base_frames(arc: jnp.ndarray, spec: RobotSpec) -> jnp.ndarray:
+    """Forward kinematics (paper eq. 4): the chain of link transforms.
+
+    Args:
+      arc: (..., M, 3) arc lengths, m.
+    Returns:
+      (..., M + 1, 4, 4): frames[0] is the base (identity), frames[i] the end
+      of link i (= base of link i + 1), frames[M] the end-effector pose.
+    """
+    local = link_transform_from_bending(bending_vector(arc, spec), spec.length)
+    frames = [jnp.broadcast_to(jnp.eye(4, dtype=local.dtype), local.shape[:-3] + (4, 4))]
+    for i in range(local.shape[-3]):
+        frames.append(frames[-1] @ local[..., i, :, :])
+    return jnp.stack(frames, axis=-3)
+
+
+forward_kinematics = link_base_frames
+
+
+def end_effector_pose(arc: jnp.ndarray, spec: RobotSpec) -> jnp.ndarray:
+    """End-effector pose T_ee, shape (..., 4, 4), for arc lengths (..., M, 3)."""
+    return forward_kinematics(arc, spec)[..., -1, :, :]
+
+
+def state_violation(arc: np.ndarray, spec: RobotSpec, atol: float = 1e-6) -> str | None:
+    """Why ``arc`` is not a valid state of ``spec``, or None if it is.
+
+    Args:
+      arc: (M, 3) arc lengths, m.
+    """
+    arc = np.asarray(arc, dtype=np.float64)
+    if arc.shape != (spec.n_links, 3):
+        return f"arc lengths must have shape ({spec.n_links}, 3), got {arc.shape}"
+    if not np.all(np.isfinite(arc)):
+        return "arc lengths contain NaN or inf"
+    low, high = arc.min(), arc.max()
+    if low < spec.l_min - atol or high > spec.l_max + atol:
+        bad = low if low < spec.l_min - atol else high
+        return f"arc length {bad:.6g} outside the limits [{spec.l_min}, {spec.l_max}]"
+    sums = arc.sum(axis=1)
+    worst = int(np.argmax(np.abs(sums - 3.0 * spec.length)))
+    if abs(sums[worst] - 3.0 * spec.length) > 3 * atol + 1e-5:
+        return (
+            f"arc lengths of link {worst + 1} sum to {sums[worst]:.6g}, "
+            f"not 3L = {3.0 * spec.length:.6g}"
+        )
+    return None
+
+
+def validate_state(arc, spec: RobotSpec) -> np.ndarray:
+    """Return ``arc`` as a float array, or raise InvalidStateError saying why not."""
+    reason = state_violation(arc, spec)
+    if reason is not None:
+        raise InvalidStateError(reason)
+    return np.asarray(arc, dtype=np.float64)
+
+
+def sample_arc_lengths(key, spec: RobotSpec, shape: tuple[int, ...] = ()) -> jnp.ndarray:
+    """Random valid link states as in paper Sec. IV-B.
+
+    ``l1`` uniform in the limits, ``l2`` uniform in its admissible range given
+    ``l1`` and ``l3 = 3 L - l1 - l2``.
+
+    Args:
+      key: jax.random key.
+      shape: leading batch shape.
+    Returns:
+      (*shape, 3) arc lengths, m.
+    """
+    import jax
+
+    k1, k2 = jax.random.split(key)
+    total = 3.0 * spec.length
+    l1 = jax.random.uniform(k1, shape, minval=spec.l_min, maxval=spec.l_max)
+    lo = jnp.maximum(spec.l_min, total - l1 - spec.l_max)
+    hi = jnp.minimum(spec.l_max, total - l1 - spec.l_min)
+    l2 = lo + (hi - lo) * jax.random.uniform(k2, shape)
+    return jnp.stack([l1, l2, total - l1 - l2], axis=-1)
