@@ -1,0 +1,162 @@
+"""MCAP sink through foxglove-sdk: Foxglove's standard schemas for display, JSON for data.
+
+Topics (= `recorder.schema` names):
+- `/world/robot/mesh`, `/world/robot/backbone`, `/world/obstacles/shapes`, `/world/plan`: foxglove.SceneUpdate
+  (frame "world"); `/world/obstacles/points`: foxglove.PointCloud (x, y, z float32);
+  `/world/goal`: foxglove.FrameTransform world -> goal; `/log`: foxglove.Log;
+- `/metrics`, `/state`, `/outcome`: JSON with the schemas of `recorder.schema`;
+- run metadata: MCAP metadata record `run` ({key: JSON text}).
+Every message's log_time is the step's sim_time in ns (no wall clock), so a run is reproducible.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any, Mapping
+
+import foxglove
+import numpy as np
+from foxglove import channels as fc
+from foxglove import messages as fm
+
+from recorder import schema
+from recorder.events import Step
+from recorder.mesh_proto import encode_indices, encode_mesh_update
+
+_FRAME = "world"
+_MESH_COLOR = fm.Color(r=0.75, g=0.75, b=0.8, a=1.0)
+_LINE_COLOR = fm.Color(r=0.1, g=0.3, b=0.9, a=1.0)
+_PLAN_COLOR = fm.Color(r=0.1, g=0.8, b=0.2, a=1.0)
+_OBSTACLE_COLOR = fm.Color(r=0.9, g=0.3, b=0.2, a=0.5)
+_LEVELS = {"debug": fm.LogLevel.Debug, "info": fm.LogLevel.Info, "warning": fm.LogLevel.Warning,
+           "warn": fm.LogLevel.Warning, "error": fm.LogLevel.Error, "critical": fm.LogLevel.Fatal}
+
+
+def _timestamp(ns: int) -> fm.Timestamp:
+    return fm.Timestamp(sec=ns // 1_000_000_000, nsec=ns % 1_000_000_000)
+
+
+def _point3s(points: np.ndarray) -> list[fm.Point3]:
+    return [fm.Point3(x=x, y=y, z=z) for x, y, z in np.asarray(points, dtype=np.float64).tolist()]
+
+
+def _vector3(v) -> fm.Vector3:
+    x, y, z = (float(c) for c in v)
+    return fm.Vector3(x=x, y=y, z=z)
+
+
+def _quaternion(r: np.ndarray) -> fm.Quaternion:
+    """Rotation matrix (3, 3) -> unit quaternion (robust branch on the largest diagonal term)."""
+    m = np.asarray(r, dtype=np.float64)
+    t = np.trace(m)
+    if t > 0:
+        s = 2.0 * np.sqrt(t + 1.0)
+        w, x, y, z = 0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s
+    else:
+        i = int(np.argmax(np.diag(m)))
+        j, k = (i + 1) % 3, (i + 2) % 3
+        s = 2.0 * np.sqrt(1.0 + m[i, i] - m[j, j] - m[k, k])
+        q = np.empty(3)
+        q[i], q[j], q[k] = 0.25 * s, (m[j, i] + m[i, j]) / s, (m[k, i] + m[i, k]) / s
+        w = (m[k, j] - m[j, k]) / s
+        x, y, z = q
+    return fm.Quaternion(x=float(x), y=float(y), z=float(z), w=float(w))
+
+
+def _lines(polylines, ns: int, entity_id: str, color: fm.Color, thickness: float) -> fm.SceneUpdate:
+    prims = [
+        fm.LinePrimitive(type=fm.LinePrimitiveLineType.LineStrip, points=_point3s(p), color=color, thickness=thickness)
+        for p in polylines
+    ]
+    return fm.SceneUpdate(
+        entities=[fm.SceneEntity(id=entity_id, frame_id=_FRAME, timestamp=_timestamp(ns), lines=prims)]
+    )
+
+
+def _shapes(sh, ns: int) -> fm.SceneUpdate:
+    spheres = [
+        fm.SpherePrimitive(pose=fm.Pose(position=_vector3(c)), size=_vector3((2 * r,) * 3), color=_OBSTACLE_COLOR)
+        for c, r in zip(sh.sphere_centers, sh.sphere_radii)
+    ]
+    cubes = [
+        fm.CubePrimitive(pose=fm.Pose(position=_vector3(c)), size=_vector3(s), color=_OBSTACLE_COLOR)
+        for c, s in zip(sh.box_centers, sh.box_sizes)
+    ]
+    entity = fm.SceneEntity(id="obstacles", frame_id=_FRAME, timestamp=_timestamp(ns), spheres=spheres, cubes=cubes)
+    return fm.SceneUpdate(entities=[entity])
+
+
+def _point_cloud(points: np.ndarray, ns: int) -> fm.PointCloud:
+    f32 = fm.PackedElementFieldNumericType.Float32
+    fields = [fm.PackedElementField(name=n, offset=4 * i, type=f32) for i, n in enumerate("xyz")]
+    return fm.PointCloud(
+        timestamp=_timestamp(ns), frame_id=_FRAME, pose=fm.Pose(position=_vector3((0, 0, 0)),
+                                                                  orientation=fm.Quaternion(x=0, y=0, z=0, w=1)),
+        point_stride=12, fields=fields, data=np.ascontiguousarray(points, dtype="<f4").tobytes(),
+    )
+
+
+class McapSink:
+    """Writes one run to `path` (.mcap) with its own foxglove `Context` (so parallel runs never mix)."""
+
+    def __init__(self, path: Path, *, overwrite: bool):
+        self._ctx = foxglove.Context()
+        self._writer = foxglove.open_mcap(str(path), allow_overwrite=overwrite, context=self._ctx)
+        ctx = self._ctx
+        self._mesh = foxglove.Channel(schema.MESH, schema=fm.SceneUpdate.get_schema(), message_encoding="protobuf",
+                                      context=ctx)
+        self._backbone = fc.SceneUpdateChannel(schema.BACKBONE, context=ctx)
+        self._shapes = fc.SceneUpdateChannel(schema.OBSTACLE_SHAPES, context=ctx)
+        self._plan = fc.SceneUpdateChannel(schema.PLAN, context=ctx)
+        self._points = fc.PointCloudChannel(schema.OBSTACLE_POINTS, context=ctx)
+        self._goal = fc.FrameTransformChannel(schema.GOAL, context=ctx)
+        self._log = fc.LogChannel(schema.LOG, context=ctx)
+        self._metrics = foxglove.Channel(schema.METRICS, schema=schema.METRICS_SCHEMA, context=ctx)
+        self._state = foxglove.Channel(schema.STATE, schema=schema.STATE_SCHEMA, context=ctx)
+        self._outcome = foxglove.Channel(schema.OUTCOME, schema=schema.OUTCOME_SCHEMA, context=ctx)
+        self._indices: bytes | None = None
+        self._last_ns = 0
+
+    def log_run(self, meta: Mapping[str, Any]) -> None:
+        self._writer.write_metadata("run", schema.encode_meta(meta))
+
+    def log_step(self, s: Step, *, log_mesh: bool, first_mesh: bool) -> None:
+        ns = self._last_ns = s.sim_time_ns
+        if log_mesh and s.mesh_vertices is not None:
+            if first_mesh:
+                self._indices = encode_indices(s.mesh_triangles)
+            data = encode_mesh_update(s.mesh_vertices, self._indices, entity_id="robot", frame_id=_FRAME,
+                                      sec=ns // 1_000_000_000, nsec=ns % 1_000_000_000, color=_MESH_COLOR)
+            self._mesh.log(data, log_time=ns)
+        if s.backbone is not None:
+            self._backbone.log(_lines(s.backbone, ns, "backbone", _LINE_COLOR, 0.004), log_time=ns)
+        if s.obstacle_points is not None:
+            self._points.log(_point_cloud(s.obstacle_points, ns), log_time=ns)
+        if s.obstacle_shapes is not None:
+            self._shapes.log(_shapes(s.obstacle_shapes, ns), log_time=ns)
+        if s.goal_position is not None:
+            tf = fm.FrameTransform(timestamp=_timestamp(ns), parent_frame_id=_FRAME, child_frame_id="goal",
+                                   translation=_vector3(s.goal_position), rotation=_quaternion(s.goal_rotation))
+            self._goal.log(tf, log_time=ns)
+        if s.plan is not None:
+            self._plan.log(_lines([s.plan], ns, "plan", _PLAN_COLOR, 0.004), log_time=ns)
+        head = {"step": s.step, "sim_time": s.sim_time}
+        if s.state is not None:
+            body = {k: s.state[k].tolist() for k in schema.STATE_FIELDS}
+            self._state.log(json.dumps({**head, **body}).encode(), log_time=ns)
+        metrics = {k: schema.json_float(v) for k, v in s.metrics.items()}
+        self._metrics.log(json.dumps({**head, **metrics}).encode(), log_time=ns)
+
+    def log_text(self, message: str, level: str, step: int, sim_time_ns: int) -> None:
+        msg = fm.Log(timestamp=_timestamp(sim_time_ns), level=_LEVELS.get(level.lower(), fm.LogLevel.Unknown),
+                     message=message, name=f"step {step}")
+        self._log.log(msg, log_time=sim_time_ns)
+
+    def flush(self) -> None:
+        self._writer.flush()
+
+    def close(self, outcome: Mapping[str, Any]) -> None:
+        """Write the outcome message (at the last step's time) and close the file (summary and footer)."""
+        self._outcome.log(json.dumps(dict(outcome)).encode(), log_time=self._last_ns)
+        self._writer.close()

@@ -1,0 +1,240 @@
+"""Read recordings (.rrd or .mcap) back into pandas: the only way analysis touches files.
+
+`load_run(path)` gives one `Run`; `load_runs(folder)` gives a per-run table and a long per-step
+metrics table over every recording under a folder (reading the .mcap of a run when both files
+exist: it only parses the small JSON topics).
+
+Both formats of one run give equal tables: every scalar is float64 in both (Rerun Scalars,
+JSON numbers), `sim_time` is stored to 1 ns in both (Rerun duration timeline, rounded
+seconds in JSON), NaN round-trips (as null in JSON).
+"""
+
+from __future__ import annotations
+
+import json
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from recorder import schema
+from recorder.errors import RecorderError
+
+_MCAP_MAGIC = b"\x89MCAP0\r\n"
+_RRD_MAGIC = b"RRF2"
+_RRD_FOOTER_TAIL = b"RRF2FOOT"
+
+
+class IncompleteRecordingWarning(UserWarning):
+    """The file was not closed (run killed): what was flushed is read, the tail may be missing."""
+
+
+@dataclass(frozen=True)
+class Run:
+    """One recording read back.
+
+    meta: run metadata; metrics: one row per step (step, sim_time [s], then the metric columns,
+    see `schema.metric_columns`); state: one row per step (step, sim_time, arc_i_j, theta_i, phi_i,
+    ee_x, ee_y, ee_z, see `schema.state_columns`); outcome: dict of `schema.OUTCOME_FIELDS` or None
+    when the run never finished; complete: the file was closed properly.
+    """
+
+    path: Path
+    format: str
+    meta: dict[str, Any]
+    metrics: pd.DataFrame
+    state: pd.DataFrame
+    outcome: dict[str, Any] | None
+    complete: bool
+
+
+@dataclass
+class _Raw:
+    """What a format reader extracts: rows keyed by nothing but their own `step` field."""
+
+    meta: dict[str, Any] = field(default_factory=dict)
+    metrics: list[dict[str, Any]] = field(default_factory=list)
+    state: list[dict[str, Any]] = field(default_factory=list)
+    outcome: dict[str, Any] | None = None
+    complete: bool = False
+
+
+# ---------------------------------------------------------------- MCAP
+def _read_mcap(path: Path) -> _Raw:
+    """Stream the records (works on unclosed files too); parse only the JSON topics and metadata."""
+    from mcap.records import Channel, DataEnd, Footer, Message, Metadata
+    from mcap.stream_reader import StreamReader
+
+    raw = _Raw()
+    wanted: dict[int, str] = {}
+    with open(path, "rb") as f:
+        try:
+            for record in StreamReader(f).records:
+                if isinstance(record, Message):
+                    topic = wanted.get(record.channel_id)
+                    if topic == schema.METRICS:
+                        raw.metrics.append(json.loads(record.data))
+                    elif topic == schema.STATE:
+                        msg = json.loads(record.data)
+                        raw.state.append({"step": msg["step"], "sim_time": msg["sim_time"], **schema.flatten_state(msg)})
+                    elif topic == schema.OUTCOME:
+                        raw.outcome = json.loads(record.data)
+                elif isinstance(record, Channel):
+                    if record.topic in schema.LIGHT_TOPICS:
+                        wanted[record.id] = record.topic
+                elif isinstance(record, Metadata) and record.name == "run":
+                    raw.meta = schema.decode_meta(record.metadata)
+                elif isinstance(record, (DataEnd, Footer)):
+                    raw.complete = True
+        except Exception as exc:  # a truncated tail raises McapError, EOFError or the decompressor's errors
+            if not raw.metrics and not raw.meta:
+                raise RecorderError(f"{path} is not a readable MCAP recording: {exc}") from None
+    for row in raw.metrics:
+        for key, value in row.items():
+            if value is None:
+                row[key] = np.nan
+    return raw
+
+
+# ---------------------------------------------------------------- RRD
+def _property(batch) -> dict[str, Any]:
+    return schema.decode_meta({name: batch.column(name)[0][0].as_py() for name in batch.schema.names
+                               if name != "rerun.controls.RowId"})
+
+
+def _read_rrd(path: Path) -> _Raw:
+    """Read the `/metrics/*`, `/state/*` scalars and the `run`/`outcome` properties."""
+    import pyarrow as pa
+    import rerun.chunk as rc
+
+    with open(path, "rb") as f:
+        head = f.read(4)
+        f.seek(max(0, path.stat().st_size - 16))
+        tail = f.read()
+    if head != _RRD_MAGIC:
+        raise RecorderError(f"{path} is not a Rerun recording (.rrd)")
+    raw = _Raw(complete=_RRD_FOOTER_TAIL in tail)
+    try:
+        chunks = rc.RrdReader(path).stream().filter(
+            content=[f"{schema.METRICS}/**", f"{schema.STATE}/**", "/__properties/**"]).to_chunks()
+    except Exception as exc:
+        raise RecorderError(f"{path} is not a readable Rerun recording: {exc}") from None
+
+    metrics: dict[int, dict[str, Any]] = {}
+    state: dict[int, dict[str, Any]] = {}
+    for chunk in chunks:
+        entity = chunk.entity_path
+        batch = chunk.to_record_batch()
+        if entity == "/__properties/run":
+            raw.meta = _property(batch)
+            continue
+        if entity == "/__properties/outcome":
+            raw.outcome = _property(batch)
+            continue
+        if chunk.is_static or "Scalars:scalars" not in batch.schema.names:
+            continue
+        parent, name = entity.rsplit("/", 1)
+        steps = batch.column(schema.STEP_TIMELINE).to_numpy()
+        times = batch.column(schema.SIM_TIME_TIMELINE).cast(pa.int64()).to_numpy() / 1e9
+        scalars = batch.column("Scalars:scalars")
+        values = scalars.values.to_numpy(zero_copy_only=False).reshape(len(batch), -1)
+        if parent == schema.METRICS:
+            target, columns = metrics, [name]
+        elif parent == schema.STATE:
+            target, columns = state, schema.state_columns(name, values.shape[1])
+        else:
+            continue
+        for step, t, row in zip(steps.tolist(), times.tolist(), values.tolist()):
+            entry = target.setdefault(step, {"step": step, "sim_time": t})
+            entry.update(zip(columns, row))
+    raw.metrics = [metrics[k] for k in sorted(metrics)]
+    raw.state = [state[k] for k in sorted(state)]
+    return raw
+
+
+# ---------------------------------------------------------------- tables
+def _metrics_frame(rows: list[dict[str, Any]]) -> pd.DataFrame:
+    names = set().union(*rows) if rows else {"step", "sim_time"}
+    df = pd.DataFrame.from_records(rows, columns=schema.metric_columns(names))
+    return _typed(df)
+
+
+def _state_frame(rows: list[dict[str, Any]]) -> pd.DataFrame:
+    columns = list(rows[0]) if rows else ["step", "sim_time"]
+    return _typed(pd.DataFrame.from_records(rows, columns=columns))
+
+
+def _typed(df: pd.DataFrame) -> pd.DataFrame:
+    """step int64, everything else float64, ordered by step, index 0..n-1."""
+    df = df.astype({c: "int64" if c == "step" else "float64" for c in df.columns})
+    return df.sort_values("step", kind="stable").reset_index(drop=True)
+
+
+def _read_raw(path: Path) -> tuple[str, _Raw]:
+    path = Path(path)
+    if not path.is_file():
+        raise RecorderError(f"{path} does not exist or is not a file")
+    if path.suffix == ".mcap":
+        fmt, raw = "mcap", _read_mcap(path)
+    elif path.suffix == ".rrd":
+        fmt, raw = "rrd", _read_rrd(path)
+    else:
+        raise RecorderError(f"{path}: expected a .rrd or .mcap recording")
+    if not raw.complete:
+        warnings.warn(f"{path} was not closed (run killed?): read {len(raw.metrics)} steps that were flushed",
+                      IncompleteRecordingWarning, stacklevel=3)
+    return fmt, raw
+
+
+def load_run(path: str | Path) -> Run:
+    """Read one .rrd or .mcap recording. Raises `RecorderError` for a missing or unreadable file;
+    warns `IncompleteRecordingWarning` for a file that was not closed (it reads what is there)."""
+    fmt, raw = _read_raw(Path(path))
+    return Run(path=Path(path), format=fmt, meta=raw.meta, metrics=_metrics_frame(raw.metrics),
+               state=_state_frame(raw.state), outcome=raw.outcome, complete=raw.complete)
+
+
+def find_recordings(folder: str | Path) -> list[Path]:
+    """Every recording under `folder` (recursively), one file per run: the .mcap if a run has both."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise RecorderError(f"{folder} is not a folder")
+    chosen: dict[Path, Path] = {}
+    for path in sorted(folder.rglob("*.rrd")) + sorted(folder.rglob("*.mcap")):
+        chosen[path.with_suffix("")] = path  # .mcap files come last and win
+    return [chosen[k] for k in sorted(chosen)]
+
+
+def load_runs(folder: str | Path) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """All runs under `folder` -> (runs, steps).
+
+    runs: one row per run: run_id, path, format, complete, the outcome fields, then the run
+    metadata (nested dicts flattened to dotted names, e.g. `mppi.horizon`).
+    steps: the long per-step metrics table, `run_id` first, then the metrics columns.
+    Unreadable files are skipped with a warning naming them.
+    """
+    run_rows, step_rows = [], []
+    for path in find_recordings(folder):
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", IncompleteRecordingWarning)
+                fmt, raw = _read_raw(path)
+        except RecorderError as exc:
+            warnings.warn(f"skipped: {exc}", stacklevel=2)
+            continue
+        run_id = str(raw.meta.get("run_id", path.stem))
+        outcome = raw.outcome or {k: None for k in schema.OUTCOME_FIELDS}
+        meta = {k: v for k, v in raw.meta.items() if k != "run_id"}
+        run_rows.append({"run_id": run_id, "path": str(path), "format": fmt, "complete": raw.complete,
+                         **{k: outcome.get(k) for k in schema.OUTCOME_FIELDS}, **meta})
+        for row in raw.metrics:
+            row["run_id"] = run_id
+        step_rows.extend(raw.metrics)
+    runs = pd.json_normalize(run_rows) if run_rows else pd.DataFrame(columns=list(schema.RUN_TABLE_COLUMNS))
+    names = set().union(*step_rows) - {"run_id"} if step_rows else set()
+    steps = pd.DataFrame.from_records(step_rows, columns=["run_id", *schema.metric_columns(names)])
+    steps = steps.astype({c: "int64" if c == "step" else "float64" for c in steps.columns if c != "run_id"})
+    return runs, steps

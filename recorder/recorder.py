@@ -1,0 +1,252 @@
+"""`Recorder`: takes typed step events and fans them out to the Rerun and MCAP sinks."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import signal
+import tempfile
+import threading
+import uuid
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from recorder import schema
+from recorder.errors import RecorderError, RecordingInterrupted
+from recorder.events import make_step
+
+FORMATS = ("rrd", "mcap")
+_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+def output_paths(out: str | Path, formats=FORMATS) -> dict[str, Path]:
+    """`out` (with or without a .rrd/.mcap suffix) -> {format: path}, e.g. recording -> recording.rrd, recording.mcap."""
+    out = Path(out)
+    if out.suffix in (".rrd", ".mcap"):
+        out = out.with_suffix("")
+    unknown = set(formats) - set(FORMATS)
+    if unknown or not formats:
+        raise ValueError(f"formats must be a non-empty subset of {FORMATS}, got {formats!r}")
+    return {fmt: out.with_name(f"{out.name}.{fmt}") for fmt in FORMATS if fmt in formats}
+
+
+def check_writable(paths: dict[str, Path], overwrite: bool) -> None:
+    """Raise `RecorderError` if an output exists (and not `overwrite`) or its folder cannot be written."""
+    for path in paths.values():
+        if path.exists() and not overwrite:
+            raise RecorderError(f"{path} exists; pass overwrite=True (--overwrite) to replace it")
+    for folder in {p.parent for p in paths.values()}:
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+            with tempfile.TemporaryFile(dir=folder):
+                pass
+        except OSError as exc:
+            raise RecorderError(f"cannot write recordings to {folder}: {exc.strerror or exc}") from None
+
+
+def recording_id(app_id: str, meta: Mapping[str, Any]) -> str:
+    """A UUID derived from the application id and the run metadata: the same run gives the same id."""
+    text = json.dumps({"app_id": app_id, "meta": schema.encode_meta(meta)}, sort_keys=True)
+    return str(uuid.UUID(bytes=hashlib.sha256(text.encode()).digest()[:16]))
+
+
+class Recorder:
+    """Record one run to `out.rrd` and/or `out.mcap` (see the package docstring for the file layout).
+
+    Args:
+        out: output path without suffix (a .rrd/.mcap suffix is dropped); parent folders are created.
+        run_meta: JSON-serialisable run metadata (scenario, links, seed, settings, versions ...);
+            `run_id` names the run (default: the file name). Keys of `schema.RUN_TABLE_COLUMNS`
+            other than run_id are reserved.
+        formats: subset of ("rrd", "mcap").
+        overwrite: replace existing files; otherwise an existing output raises `RecorderError`.
+        mesh_every: log the robot mesh on steps where `step % mesh_every == 0` (both formats).
+        flush_every: flush both files every this many steps; a SIGKILL loses at most these.
+        safety_margin: metres; drawn as a line beside the distances in Rerun.
+        app_id: Rerun application id.
+
+    Files are opened at construction (after the path checks); SIGINT/SIGTERM handlers are installed
+    while the recorder is open (main thread only) and the previous ones restored on close. A first
+    signal lets the current step finish: the next `log_step` records it, then raises
+    `RecordingInterrupted`; a second signal raises at once. Leaving a `with` block without `finish()`
+    writes the outcome "interrupted" and closes both files.
+    """
+
+    def __init__(
+        self,
+        out: str | Path,
+        run_meta: Mapping[str, Any],
+        formats=FORMATS,
+        *,
+        overwrite: bool = False,
+        mesh_every: int = 1,
+        flush_every: int = 50,
+        safety_margin: float | None = None,
+        app_id: str = "ncedf",
+    ):
+        if mesh_every < 1 or flush_every < 1:
+            raise ValueError("mesh_every and flush_every must be >= 1")
+        reserved = set(run_meta) & (set(schema.RUN_TABLE_COLUMNS) - {"run_id"})
+        if reserved:
+            raise ValueError(f"run_meta keys {sorted(reserved)} are reserved for the run table")
+        self.paths = output_paths(out, formats)
+        meta = dict(run_meta)
+        meta.setdefault("run_id", next(iter(self.paths.values())).stem)
+        schema.encode_meta(meta)  # fail early on unserialisable metadata
+        check_writable(self.paths, overwrite)
+
+        self.run_meta = meta
+        self._mesh_every, self._flush_every = mesh_every, flush_every
+        self._triangles: np.ndarray | None = None
+        self._steps = 0
+        self._last = (0, 0)  # (step, sim_time_ns) of the last step, for text and the outcome
+        self._min_true = math.inf
+        self._signal: int | None = None
+        self._previous_handlers: dict[int, Any] = {}
+        self._sinks = self._open_sinks(overwrite, app_id, safety_margin)
+        for sink in self._sinks:
+            sink.log_run(meta)
+        self._install_handlers()
+
+    def _open_sinks(self, overwrite: bool, app_id: str, safety_margin: float | None) -> list:
+        from recorder.mcap_sink import McapSink
+        from recorder.rerun_sink import RerunSink
+
+        sinks = []
+        try:
+            for fmt, path in self.paths.items():
+                if fmt == "rrd":
+                    sinks.append(RerunSink(path, app_id=app_id, recording_id=recording_id(app_id, self.run_meta),
+                                           run_name=str(self.run_meta["run_id"]), safety_margin=safety_margin))
+                else:
+                    sinks.append(McapSink(path, overwrite=overwrite))
+        except Exception as exc:
+            for sink in sinks:
+                sink.close({"outcome": "interrupted"})
+            raise RecorderError(f"cannot open {path}: {exc}") from exc
+        return sinks
+
+    # ------------------------------------------------------------ signals
+    def _install_handlers(self) -> None:
+        if threading.current_thread() is not threading.main_thread():
+            return
+        for sig in _SIGNALS:
+            self._previous_handlers[sig] = signal.signal(sig, self._on_signal)
+
+    def _restore_handlers(self) -> None:
+        for sig, handler in self._previous_handlers.items():
+            signal.signal(sig, handler)
+        self._previous_handlers.clear()
+
+    def _on_signal(self, signum: int, frame) -> None:
+        if self._signal is not None:
+            raise RecordingInterrupted(f"signal {signal.Signals(signum).name} (second)")
+        self._signal = signum
+
+    # ------------------------------------------------------------ events
+    @property
+    def closed(self) -> bool:
+        return not self._sinks
+
+    def log_step(
+        self,
+        step: int,
+        sim_time: float,
+        *,
+        metrics: Mapping[str, float],
+        mesh_vertices=None,
+        mesh_triangles=None,
+        backbone=None,
+        obstacle_points=None,
+        obstacle_shapes=None,
+        goal=None,
+        plan=None,
+        state=None,
+    ) -> None:
+        """Record one step. Arrays may be numpy or JAX; units metres, radians, seconds.
+
+        Args:
+            step: step index (timeline `step`); sim_time: seconds (timeline `sim_time`, stored to 1 ns).
+            metrics: {name: float}: goal_distance, predicted_min_distance, true_min_distance, solver_ms
+                and any extra keys (NaN or None allowed). Training runs and benchmarks pass only metrics.
+            mesh_vertices: (V, 3) robot surface; mesh_triangles: (F, 3) vertex indices, required with the
+                first mesh, constant afterwards (logged once; a different topology raises ValueError).
+            backbone: (M, K, 3) or a list of M (K_i, 3) polylines, one per link.
+            obstacle_points: (P, 3) observed cloud. obstacle_shapes: {"spheres": {"centers": (S, 3),
+                "radii": (S,)}, "boxes": {"centers": (B, 3), "sizes": (B, 3)}}.
+            goal: position (3,) or pose (4, 4). plan: (H, 3) planned end-effector path.
+            state: {"arc_lengths": (M, 3), "theta": (M,), "phi": (M,), "ee_position": (3,)}.
+        """
+        if self.closed:
+            raise RecorderError(f"recorder for {self._describe()} is closed")
+        s = make_step(step, sim_time, metrics, mesh_vertices=mesh_vertices, mesh_triangles=mesh_triangles,
+                      backbone=backbone, obstacle_points=obstacle_points, obstacle_shapes=obstacle_shapes,
+                      goal=goal, plan=plan, state=state)
+        first_mesh = s.mesh_vertices is not None and self._triangles is None
+        if s.mesh_vertices is not None:
+            self._check_topology(s.mesh_triangles, s.mesh_vertices.shape[0])
+        log_mesh = s.step % self._mesh_every == 0
+        for sink in self._sinks:
+            sink.log_step(s, log_mesh=log_mesh, first_mesh=first_mesh)
+        self._steps += 1
+        self._last = (s.step, s.sim_time_ns)
+        true_min = s.metrics.get("true_min_distance", math.nan)
+        if true_min < self._min_true:
+            self._min_true = true_min
+        if self._steps % self._flush_every == 0:
+            self.flush()
+        if self._signal is not None:
+            raise RecordingInterrupted(f"signal {signal.Signals(self._signal).name}")
+
+    def _check_topology(self, triangles: np.ndarray | None, n_vertices: int) -> None:
+        if self._triangles is None:
+            if triangles is None:
+                raise ValueError("mesh_triangles is required with the first mesh_vertices")
+            if triangles.size and triangles.max() >= n_vertices:
+                raise ValueError(f"mesh_triangles index {triangles.max()} out of range for {n_vertices} vertices")
+            self._triangles = triangles
+        elif triangles is not None and triangles is not self._triangles and not np.array_equal(triangles,
+                                                                                               self._triangles):
+            raise ValueError(f"mesh topology changed: triangles {triangles.shape} differ from the first "
+                             f"{self._triangles.shape}; the recorder logs the topology once")
+
+    def log_text(self, message: str, level: str = "info") -> None:
+        """A text line (levels debug, info, warning, error, critical) at the last step's time."""
+        for sink in self._sinks:
+            sink.log_text(message, level, *self._last)
+
+    def flush(self) -> None:
+        for sink in self._sinks:
+            sink.flush()
+
+    def finish(self, outcome: Mapping[str, Any]) -> None:
+        """Write the outcome ({"outcome": success|collision|stuck|interrupted, "steps", "reach_step",
+        "min_true_distance", "first_collision_step"}; missing fields are None) and close the files."""
+        clean = schema.normalise_outcome(outcome)
+        sinks, self._sinks = self._sinks, []
+        try:
+            for sink in sinks:
+                sink.close(clean)
+        finally:
+            self._restore_handlers()
+
+    def interrupted_outcome(self) -> dict[str, Any]:
+        """The outcome written when the run ends without `finish()`: what was logged so far."""
+        return {
+            "outcome": "interrupted",
+            "steps": self._steps,
+            "min_true_distance": self._min_true if math.isfinite(self._min_true) else None,
+        }
+
+    def _describe(self) -> str:
+        return " and ".join(str(p) for p in self.paths.values())
+
+    def __enter__(self) -> "Recorder":
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if not self.closed:
+            self.finish(self.interrupted_outcome())
