@@ -1,0 +1,56 @@
+"""Recordings of runs: Rerun (.rrd) and MCAP (.mcap) files written from one event stream, read back into pandas.
+
+The recorder takes arrays and names only (it imports nothing from `ncedf` or `scenarios`)::
+
+    from recorder import Recorder, load_run, load_runs
+
+    with Recorder("out/run-0", run_meta, safety_margin=0.02) as rec:      # out/run-0.rrd + out/run-0.mcap
+        for k in range(steps):
+            rec.log_step(k, k * dt, metrics={...}, mesh_vertices=V, mesh_triangles=F, backbone=B,
+                         obstacle_points=P, obstacle_shapes=S, goal=g, plan=H, state={...})
+        rec.finish({"outcome": "success", "steps": steps, "reach_step": r,
+                    "min_true_distance": d, "first_collision_step": None})
+    run = load_run("out/run-0.mcap")          # Run(meta, metrics, state, outcome, complete)
+    runs, steps = load_runs("out")            # one row per run; long per-step metrics
+
+Training runs and benchmarks use the same `Recorder` with only `metrics` per step.
+
+Where each event goes (names in `recorder.schema`; MCAP topics = Rerun entity paths):
+
+| event | Rerun (.rrd) | MCAP (.mcap) |
+| --- | --- | --- |
+| `/run` metadata | recording property `run`, one key per metadata key, value = JSON text | metadata record `run`, same {key: JSON text} |
+| `/world/robot/mesh` | Mesh3D: triangle indices static (once), vertex positions per step (every `mesh_every`-th step) | foxglove.SceneUpdate, one triangle list (every `mesh_every`-th step) |
+| `/world/robot/backbone` | LineStrips3D, one strip per link | foxglove.SceneUpdate, one line strip per link |
+| `/world/obstacles/points` | Points3D | foxglove.PointCloud (x, y, z float32) |
+| `/world/obstacles/shapes` | `.../spheres` Ellipsoids3D, `.../boxes` Boxes3D | foxglove.SceneUpdate (spheres, cubes) |
+| `/world/goal` | Transform3D + a point at its origin | foxglove.FrameTransform world -> goal |
+| `/world/plan` | LineStrips3D | foxglove.SceneUpdate line strip |
+| `/state` | Scalars `/state/arc_lengths` (3M), `/state/theta`, `/state/phi` (M), `/state/ee_position` (3) | JSON `ncedf.State` |
+| `/metrics` | Scalars `/metrics/<name>` | JSON `ncedf.Metrics` (NaN as null) |
+| `/outcome` | recording property `outcome` (JSON text per field) | JSON `ncedf.Outcome`, the last message |
+| `/log` text | TextLog | foxglove.Log |
+
+Rerun: timelines `step` and `sim_time` (wall clock off), a stored default blueprint (3D view of
+`/world`; distances with the safety margin `/reference/safety_margin`; solver time; all metrics; log).
+MCAP: log_time = sim_time in ns. Scalars are float64 in both formats; `sim_time` is kept to 1 ns.
+
+Reproducibility: the Rerun recording id is derived from app id + metadata and nothing wall-clock
+is logged, yet rerun-sdk 0.41 stamps every chunk and row with a time-based id, so two .rrd files of
+the same run are equal by `rerun rrd compare` but not byte for byte. The .mcap is byte-identical.
+
+Faults: the files are written in place and flushed every `flush_every` steps. SIGINT/SIGTERM let the
+current step finish, then write the outcome "interrupted" and close both files; after a SIGKILL
+`load_run` reads what was flushed and warns `IncompleteRecordingWarning`. An existing output is
+refused unless `overwrite=True`; an unwritable folder fails before anything is opened
+(`RecorderError`, one line naming the path).
+
+CLI: `python -m recorder.inspect FILE...`; `python -m recorder.synthetic OUT` writes a synthetic run.
+"""
+
+from recorder.errors import RecorderError, RecordingInterrupted
+from recorder.read import IncompleteRecordingWarning, Run, load_run, load_runs
+from recorder.recorder import Recorder
+
+__all__ = ["Recorder", "RecorderError", "RecordingInterrupted", "IncompleteRecordingWarning", "Run", "load_run",
+           "load_runs"]

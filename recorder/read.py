@@ -118,7 +118,10 @@ def _read_rrd(path: Path) -> _Raw:
         raise RecorderError(f"{path} is not a Rerun recording (.rrd)")
     raw = _Raw(complete=_RRD_FOOTER_TAIL in tail)
     try:
-        chunks = rc.RrdReader(path).stream().filter(
+        with warnings.catch_warnings():  # rerun warns about a missing footer; `complete` reports it
+            warnings.simplefilter("ignore")
+            reader = rc.RrdReader(path)
+        chunks = reader.stream().filter(
             content=[f"{schema.METRICS}/**", f"{schema.STATE}/**", "/__properties/**"]).to_chunks()
     except Exception as exc:
         raise RecorderError(f"{path} is not a readable Rerun recording: {exc}") from None
@@ -183,6 +186,8 @@ def _read_raw(path: Path) -> tuple[str, _Raw]:
         fmt, raw = "rrd", _read_rrd(path)
     else:
         raise RecorderError(f"{path}: expected a .rrd or .mcap recording")
+    if raw.outcome is not None:
+        raw.outcome = {k: raw.outcome.get(k) for k in schema.OUTCOME_FIELDS}
     if not raw.complete:
         warnings.warn(f"{path} was not closed (run killed?): read {len(raw.metrics)} steps that were flushed",
                       IncompleteRecordingWarning, stacklevel=3)
