@@ -166,7 +166,8 @@ def _metrics_frame(rows: list[dict[str, Any]]) -> pd.DataFrame:
 
 
 def _state_frame(rows: list[dict[str, Any]]) -> pd.DataFrame:
-    columns = list(rows[0]) if rows else ["step", "sim_time"]
+    links = sum(1 for c in rows[0] if c.startswith("theta_")) if rows else 0
+    columns = ["step", "sim_time", *schema.state_table_columns(links)] if rows else ["step", "sim_time"]
     return _typed(pd.DataFrame.from_records(rows, columns=columns))
 
 

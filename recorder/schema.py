@@ -152,6 +152,12 @@ def state_columns(field: str, size: int) -> list[str]:
     return [f"{field}_{i + 1}" for i in range(size)]
 
 
+def state_table_columns(links: int) -> list[str]:
+    """All columns of a state table for `links` links, in order (after step and sim_time)."""
+    sizes = {"arc_lengths": 3 * links, "theta": links, "phi": links, "ee_position": 3}
+    return [c for f in STATE_FIELDS for c in state_columns(f, sizes[f])]
+
+
 def flatten_state(values: Mapping[str, Any]) -> dict[str, float]:
     """{field: array} -> {column: float} using `state_columns` (the layout of the state table)."""
     row = {}

@@ -1,0 +1,247 @@
+"""A short synthetic run recorded to both formats and read back: every value against what was sent."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import rerun.chunk as rc
+from mcap.reader import make_reader
+from mcap_protobuf.decoder import DecoderFactory
+
+from recorder import Recorder, load_run, load_runs, schema
+from recorder.synthetic import SyntheticRun
+
+RERUN = str(Path(sys.executable).with_name("rerun"))
+STEPS, LINKS, DT = 3, 4, 0.05
+OUTCOME = {"outcome": "collision", "steps": STEPS, "reach_step": None, "min_true_distance": -0.001,
+           "first_collision_step": 2}
+
+
+def record(out: Path, seed: int = 0) -> tuple[SyntheticRun, list[dict]]:
+    run = SyntheticRun(links=LINKS, seed=seed, rings=5, ring_points=8, n_points=50, horizon=6)
+    sent = [run.step(k) for k in range(STEPS)]
+    with Recorder(out, {**run.meta, "run_id": "r0"}, safety_margin=0.02) as rec:
+        for k, kwargs in enumerate(sent):
+            rec.log_step(k, k * DT, **kwargs)
+            rec.log_text(f"hello {k}", "warning")
+        rec.finish(OUTCOME)
+    return run, sent
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory):
+    out = tmp_path_factory.mktemp("rt") / "run"
+    run, sent = record(out)
+    return out, run, sent
+
+
+def expected_metrics(sent) -> pd.DataFrame:
+    rows = [{"step": k, "sim_time": k * DT, **s["metrics"]} for k, s in enumerate(sent)]
+    return pd.DataFrame(rows).astype({"step": "int64"})
+
+
+def expected_state(sent) -> pd.DataFrame:
+    rows = [{"step": k, "sim_time": k * DT, **schema.flatten_state(s["state"])} for k, s in enumerate(sent)]
+    return pd.DataFrame(rows).astype({"step": "int64"})
+
+
+@pytest.mark.parametrize("fmt", ["rrd", "mcap"])
+def test_tables_hold_what_was_sent(recorded, fmt):
+    out, run, sent = recorded
+    r = load_run(out.with_suffix(f".{fmt}"))
+    assert r.complete and r.format == fmt
+    assert r.meta == {**run.meta, "run_id": "r0"}
+    assert r.outcome == OUTCOME
+    pd.testing.assert_frame_equal(r.metrics, expected_metrics(sent))
+    pd.testing.assert_frame_equal(r.state, expected_state(sent))
+    assert list(r.state.columns[2:5]) == ["arc_1_1", "arc_1_2", "arc_1_3"]
+    assert list(r.state.columns[-3:]) == ["ee_x", "ee_y", "ee_z"]
+
+
+def test_both_formats_give_equal_tables(recorded):
+    out, _, _ = recorded
+    a, b = load_run(out.with_suffix(".rrd")), load_run(out.with_suffix(".mcap"))
+    pd.testing.assert_frame_equal(a.metrics, b.metrics)
+    pd.testing.assert_frame_equal(a.state, b.state)
+    assert (a.meta, a.outcome) == (b.meta, b.outcome)
+
+
+def _rrd_columns(path: Path) -> dict[tuple[str, str], list]:
+    cols = {}
+    for chunk in rc.RrdReader(path).stream().to_chunks():
+        batch = chunk.to_record_batch()
+        for name in batch.schema.names:
+            cols.setdefault((chunk.entity_path, name), []).extend(batch.column(name).to_pylist())
+    return cols
+
+
+def test_rrd_display_entities_hold_what_was_sent(recorded):
+    out, run, sent = recorded
+    cols = _rrd_columns(out.with_suffix(".rrd"))
+
+    def per_step(entity, component):
+        return [np.asarray(v, dtype=np.float64) for v in cols[(entity, component)]]
+
+    assert np.array_equal(np.asarray(cols[(schema.MESH, "Mesh3D:triangle_indices")][0]), run.triangles)
+    for k, s in enumerate(sent):
+        np.testing.assert_array_equal(per_step(schema.MESH, "Mesh3D:vertex_positions")[k],
+                                      s["mesh_vertices"].astype(np.float32))
+        np.testing.assert_array_equal(per_step(schema.OBSTACLE_POINTS, "Points3D:positions")[k],
+                                      s["obstacle_points"].astype(np.float32))
+        strips = cols[(schema.BACKBONE, "LineStrips3D:strips")][k]
+        np.testing.assert_array_equal(np.asarray(strips), s["backbone"].astype(np.float32))
+        np.testing.assert_array_equal(np.asarray(cols[(schema.PLAN, "LineStrips3D:strips")][k][0]),
+                                      s["plan"].astype(np.float32))
+        np.testing.assert_array_equal(per_step(schema.GOAL, "Transform3D:translation")[k][0],
+                                      s["goal"].astype(np.float32))
+        spheres = s["obstacle_shapes"]["spheres"]
+        np.testing.assert_allclose(per_step(f"{schema.OBSTACLE_SHAPES}/spheres", "Ellipsoids3D:centers")[k],
+                                   spheres["centers"], rtol=1e-6)
+        np.testing.assert_allclose(per_step(f"{schema.OBSTACLE_SHAPES}/spheres", "Ellipsoids3D:half_sizes")[k],
+                                   np.repeat(spheres["radii"][:, None], 3, axis=1), rtol=1e-6)
+        boxes = s["obstacle_shapes"]["boxes"]
+        np.testing.assert_allclose(per_step(f"{schema.OBSTACLE_SHAPES}/boxes", "Boxes3D:half_sizes")[k],
+                                   boxes["sizes"] / 2, rtol=1e-6)
+    assert cols[(schema.LOG, "TextLog:text")] == [[f"hello {k}"] for k in range(STEPS)]
+    assert cols[(schema.LOG, "TextLog:level")] == [["WARN"]] * STEPS
+    assert cols[(schema.SAFETY_MARGIN, "Scalars:scalars")] == [[0.02]] * STEPS
+    assert cols[(schema.METRICS + "/goal_distance", "step")] == list(range(STEPS))
+
+
+def _mcap_messages(path: Path) -> dict[str, list]:
+    """{topic: [(log_time, message)]}: protobuf decoded, JSON parsed."""
+    msgs: dict[str, list] = {}
+    factory = DecoderFactory()
+    with open(path, "rb") as f:
+        for schema_, channel, message in make_reader(f).iter_messages():
+            if channel.message_encoding == "json":
+                decoded = json.loads(message.data)
+            else:
+                decoded = factory.decoder_for(channel.message_encoding, schema_)(message.data)
+            msgs.setdefault(channel.topic, []).append((message.log_time, decoded))
+    return msgs
+
+
+def _xyz(points) -> np.ndarray:
+    return np.array([[p.x, p.y, p.z] for p in points])
+
+
+def test_mcap_display_topics_hold_what_was_sent(recorded):
+    out, run, sent = recorded
+    msgs = _mcap_messages(out.with_suffix(".mcap"))
+    for topic in (schema.MESH, schema.BACKBONE, schema.OBSTACLE_POINTS, schema.OBSTACLE_SHAPES, schema.GOAL,
+                  schema.PLAN, schema.STATE, schema.METRICS, schema.LOG):
+        assert [t for t, _ in msgs[topic]] == [round(k * DT * 1e9) for k in range(STEPS)], topic
+    for k, s in enumerate(sent):
+        mesh = msgs[schema.MESH][k][1].entities[0].triangles[0]
+        np.testing.assert_array_equal(_xyz(mesh.points), s["mesh_vertices"].astype(np.float32))
+        np.testing.assert_array_equal(np.array(mesh.indices), run.triangles.ravel())
+        lines = msgs[schema.BACKBONE][k][1].entities[0].lines
+        np.testing.assert_array_equal(np.stack([_xyz(l.points) for l in lines]), s["backbone"].astype(np.float32))
+        cloud = msgs[schema.OBSTACLE_POINTS][k][1]
+        np.testing.assert_array_equal(np.frombuffer(cloud.data, "<f4").reshape(-1, 3),
+                                      s["obstacle_points"].astype(np.float32))
+        shapes = msgs[schema.OBSTACLE_SHAPES][k][1].entities[0]
+        spheres = s["obstacle_shapes"]["spheres"]
+        np.testing.assert_array_equal([[p.pose.position.x, p.pose.position.y, p.pose.position.z]
+                                       for p in shapes.spheres], spheres["centers"])
+        np.testing.assert_array_equal([p.size.x for p in shapes.spheres], 2 * spheres["radii"])
+        np.testing.assert_array_equal([[c.size.x, c.size.y, c.size.z] for c in shapes.cubes],
+                                      s["obstacle_shapes"]["boxes"]["sizes"])
+        goal = msgs[schema.GOAL][k][1]
+        np.testing.assert_array_equal([goal.translation.x, goal.translation.y, goal.translation.z], s["goal"])
+        assert (goal.rotation.w, goal.parent_frame_id, goal.child_frame_id) == (1.0, "world", "goal")
+        plan = msgs[schema.PLAN][k][1].entities[0].lines[0]
+        np.testing.assert_array_equal(_xyz(plan.points), s["plan"].astype(np.float32))
+        assert msgs[schema.LOG][k][1].message == f"hello {k}"
+
+
+def test_pose_goal_becomes_a_transform(tmp_path):
+    angle = 0.3
+    pose = np.eye(4)
+    pose[:3, :3] = [[np.cos(angle), -np.sin(angle), 0], [np.sin(angle), np.cos(angle), 0], [0, 0, 1]]
+    pose[:3, 3] = [0.1, 0.2, 0.3]
+    with Recorder(tmp_path / "g", {}) as rec:
+        rec.log_step(0, 0.0, metrics={}, goal=pose)
+        rec.finish({"outcome": "success"})
+    goal = _mcap_messages(tmp_path / "g.mcap")[schema.GOAL][0][1]
+    q = goal.rotation
+    np.testing.assert_allclose([q.x, q.y, q.z, q.w], [0, 0, np.sin(angle / 2), np.cos(angle / 2)], atol=1e-12)
+    cols = _rrd_columns(tmp_path / "g.rrd")
+    np.testing.assert_allclose(np.asarray(cols[(schema.GOAL, "Transform3D:mat3x3")][0]).reshape(3, 3).T,
+                               pose[:3, :3], atol=1e-7)
+
+
+def test_files_validate_with_rerun_cli(recorded, tmp_path):
+    out, _, _ = recorded
+    assert subprocess.run([RERUN, "rrd", "verify", str(out.with_suffix(".rrd"))], capture_output=True).returncode == 0
+    converted = tmp_path / "converted.rrd"
+    res = subprocess.run([RERUN, "mcap", "convert", str(out.with_suffix(".mcap")), "-o", str(converted)],
+                         capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+    assert subprocess.run([RERUN, "rrd", "verify", str(converted)], capture_output=True).returncode == 0
+    entities = {c.entity_path for c in rc.RrdReader(converted).stream().to_chunks()}
+    assert {schema.MESH, schema.OBSTACLE_POINTS, schema.METRICS} <= entities
+
+
+def test_same_run_gives_the_same_recording(recorded, tmp_path):
+    out, _, _ = recorded
+    again = tmp_path / "run"
+    record(again)
+    assert again.with_suffix(".mcap").read_bytes() == out.with_suffix(".mcap").read_bytes()
+    same = subprocess.run([RERUN, "rrd", "compare", "--unordered", str(out.with_suffix(".rrd")),
+                           str(again.with_suffix(".rrd"))], capture_output=True)
+    assert same.returncode == 0, same.stderr
+    other = tmp_path / "other" / "run"
+    record(other, seed=1)
+    differ = subprocess.run([RERUN, "rrd", "compare", "--unordered", str(out.with_suffix(".rrd")),
+                             str(other.with_suffix(".rrd"))], capture_output=True)
+    assert differ.returncode != 0
+    assert other.with_suffix(".mcap").read_bytes() != out.with_suffix(".mcap").read_bytes()
+
+
+def test_metrics_only_runs_with_extra_keys_jax_inputs_and_nan(tmp_path):
+    import jax.numpy as jnp
+
+    sent = [{"loss": 1.0 / (k + 1), "lr": float("nan") if k == 1 else 1e-3, "val_mae": None} for k in range(4)]
+    with Recorder(tmp_path / "train", {"kind": "training", "run_id": "t0"}) as rec:
+        for k, m in enumerate(sent):
+            rec.log_step(k, float(k), metrics={**m, "grad_norm": jnp.float32(0.5)})
+        rec.log_step(4, 4.0, metrics={"loss": 0.1}, state={"arc_lengths": jnp.ones((2, 3)), "theta": jnp.zeros(2),
+                                                             "phi": jnp.zeros(2), "ee_position": jnp.arange(3.0)})
+        rec.finish({"outcome": "success", "steps": 5})
+    a, b = load_run(tmp_path / "train.rrd"), load_run(tmp_path / "train.mcap")
+    pd.testing.assert_frame_equal(a.metrics, b.metrics)
+    pd.testing.assert_frame_equal(a.state, b.state)
+    assert list(a.metrics.columns) == ["step", "sim_time", "grad_norm", "loss", "lr", "val_mae"]
+    assert a.metrics["loss"].tolist() == [1.0, 0.5, 1 / 3, 0.25, 0.1]
+    assert np.isnan(a.metrics["lr"][1]) and a.metrics["lr"][0] == 1e-3
+    assert a.metrics["val_mae"].isna().all() and a.metrics["grad_norm"][:4].tolist() == [0.5] * 4
+    assert a.state[["ee_x", "ee_y", "ee_z"]].values.tolist() == [[0.0, 1.0, 2.0]]
+    assert a.outcome == b.outcome == {"outcome": "success", "steps": 5, "reach_step": None,
+                                      "min_true_distance": None, "first_collision_step": None}
+
+
+def test_load_runs_tables(recorded, tmp_path):
+    out, run, sent = recorded
+    for seed in (1, 2):
+        with Recorder(tmp_path / "sub" / f"s{seed}", {"seed": seed, "mppi": {"horizon": 5}}, formats=("rrd",)) as rec:
+            rec.log_step(0, 0.0, metrics={"goal_distance": seed})
+    (tmp_path / "r0.mcap").write_bytes(out.with_suffix(".mcap").read_bytes())
+    (tmp_path / "r0.rrd").write_bytes(out.with_suffix(".rrd").read_bytes())
+    runs, steps = load_runs(tmp_path)
+    assert runs["run_id"].tolist() == ["r0", "s1", "s2"]
+    assert runs["format"].tolist() == ["mcap", "rrd", "rrd"]
+    assert runs["outcome"].tolist() == ["collision", "interrupted", "interrupted"]
+    assert runs["mppi.horizon"].tolist() == [run.meta["mppi"]["horizon"], 5, 5]
+    assert runs["complete"].all()
+    assert list(steps.columns[:3]) == ["run_id", "step", "sim_time"]
+    r0 = steps[steps.run_id == "r0"].drop(columns="run_id").dropna(axis=1, how="all").reset_index(drop=True)
+    pd.testing.assert_frame_equal(r0, expected_metrics(sent))
+    assert steps.loc[steps.run_id == "s2", "goal_distance"].tolist() == [2.0]
