@@ -65,7 +65,7 @@ class _Raw:
 # ---------------------------------------------------------------- MCAP
 def _read_mcap(path: Path) -> _Raw:
     """Stream the records (works on unclosed files too); parse only the JSON topics and metadata."""
-    from mcap.records import Channel, DataEnd, Footer, Message, Metadata
+    from mcap.records import Channel, Footer, Message, Metadata
     from mcap.stream_reader import StreamReader
 
     raw = _Raw()
@@ -87,7 +87,7 @@ def _read_mcap(path: Path) -> _Raw:
                         wanted[record.id] = record.topic
                 elif isinstance(record, Metadata) and record.name == "run":
                     raw.meta = schema.decode_meta(record.metadata)
-                elif isinstance(record, (DataEnd, Footer)):
+                elif isinstance(record, Footer):
                     raw.complete = True
         except Exception as exc:  # a truncated tail raises McapError, EOFError or the decompressor's errors
             if not raw.metrics and not raw.meta:
