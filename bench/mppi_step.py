@@ -1,0 +1,195 @@
+"""MPPI step time per shape representation: broad phase vs brute force, same run.
+
+    python bench/mppi_step.py --links 4 5 7 --samples 800 --horizon 20 --points 500
+    python bench/mppi_step.py --quick
+
+Scene: the paper's cluttered environment (Sec. VI-D; three boxes, points on their
+faces, two spheres of 30 surface points), exactly ``--points`` obstacle points,
+goal (4.8, 0, 3.6). The robot runs closed loop from the straight state with the
+broad-phase controller; the brute-force controller (``broad_phase=False``) is
+then run on the first ``--ref-steps`` of the same inputs (state, plan, key), so
+both see identical samples. Reported per (links, representation):
+
+  median / p95 step time of the broad phase over ``--steps`` steps after
+  compilation; its compile time (first call minus median); the brute-force median
+  over ``--ref-steps`` steps (fewer: it takes seconds per step); their ratio;
+  agreement: the fraction of the N x H rollout states whose min distance equals
+  brute force (``exact``: bit-identical; ``1e-5``: within 1e-5 m), the largest
+  difference, and the relative change of the executed control and of the whole
+  updated plan, ``||a_bp - a_bf|| / ||a_bf||``.
+
+With more than 6 links the horizon is ``--horizon-long`` (release: 7) unless
+``--same-horizon``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ncedf.mppi import MPPI, MPPIConfig
+from ncedf.robot import RobotSpec
+from ncedf.shapes import make_shape
+
+BOXES = (((2.5, 0.0, 5.0), (1.0, 4.8, 3.0)), ((2.5, 0.0, 0.0), (1.0, 5.0, 2.0)), ((5.3, 0.0, 2.0), (2.0, 5.0, 1.0)))
+SPHERES = (((4.0, -4.5, 3.8), 0.5), ((4.0, 0.0, 2.2), 0.5))
+GOAL = (4.8, 0.0, 3.6)
+
+
+def cluttered_points(n: int, seed: int = 0) -> np.ndarray:
+    """``n`` obstacle points: 30 on each sphere, the rest uniform by area on the box faces."""
+    rng = np.random.default_rng(seed)
+    sphere_pts = []
+    for centre, radius in SPHERES:
+        v = rng.normal(size=(30, 3))
+        sphere_pts.append(np.asarray(centre) + radius * v / np.linalg.norm(v, axis=1, keepdims=True))
+    faces = []
+    for centre, size in BOXES:
+        c, s = np.asarray(centre), np.asarray(size)
+        for axis in range(3):
+            for sign in (-1.0, 1.0):
+                others = [i for i in range(3) if i != axis]
+                faces.append((c, s, axis, sign, s[others[0]] * s[others[1]], others))
+    areas = np.array([f[4] for f in faces])
+    n_box = max(n - 60, 0)
+    which = rng.choice(len(faces), size=n_box, p=areas / areas.sum())
+    box_pts = np.empty((n_box, 3))
+    for i, f in enumerate(which):
+        c, s, axis, sign, _, others = faces[f]
+        p = c.copy()
+        p[axis] += sign * s[axis] / 2
+        for o in others:
+            p[o] += (rng.random() - 0.5) * s[o]
+        box_pts[i] = p
+    pts = np.concatenate([box_pts] + sphere_pts)[:n]
+    return pts.astype(np.float32)
+
+
+def build_shape(name, spec, model):
+    return make_shape(name, spec, model=model) if name == "ncedf" else make_shape(name, spec)
+
+
+def timed(fn, *args):
+    t0 = time.perf_counter()
+    out = jax.block_until_ready(fn(*args))
+    return out, time.perf_counter() - t0
+
+
+def run(links, rep, args, model, points):
+    spec = RobotSpec(links)
+    horizon = args.horizon if (links <= 6 or args.same_horizon) else args.horizon_long
+    base = dict(samples=args.samples, horizon=horizon, max_points=max(len(points), 1))
+    shape = build_shape(rep, spec, model)
+    fast = MPPI(spec, shape, MPPIConfig(broad_phase=True, k1=args.k1, k2=args.k2, **base))
+    ref = MPPI(spec, shape, MPPIConfig(broad_phase=False, **base))
+    pts, mask = fast.pad_points(points)
+    goal = jnp.asarray(GOAL, jnp.float32)
+
+    state = fast.init(jax.random.PRNGKey(args.seed))
+    arc = jnp.asarray(spec.straight_state(), jnp.float32)
+    inputs, outputs, times = [], [], []
+    _, first = timed(fast.core_step, state, arc, goal, pts, mask)
+    for i in range(args.steps):
+        out, dt = timed(fast.core_step, state, arc, goal, pts, mask)
+        if i < args.ref_steps:
+            inputs.append((state, arc))
+            outputs.append(out)
+        times.append(dt)
+        action, state, _ = out
+        arc = arc + action * fast.config.dt
+    med = float(np.median(times))
+    p95 = float(np.percentile(times, 95))
+
+    ref_times, same_exact, same_tol, max_diff, d_action, d_plan = [], [], [], [], [], []
+    _, ref_first = timed(ref.core_step, inputs[0][0], inputs[0][1], goal, pts, mask)
+    for (st, a), (act_f, st_f, info_f) in zip(inputs, outputs):
+        (act_r, st_r, info_r), dt = timed(ref.core_step, st, a, goal, pts, mask)
+        ref_times.append(dt)
+        df = np.asarray(info_f.rollout_min_distance, np.float64)
+        dr = np.asarray(info_r.rollout_min_distance, np.float64)
+        diff = np.abs(np.where(np.isfinite(dr), df - dr, 0.0))
+        same_exact.append(np.mean(df == dr))
+        same_tol.append(np.mean(diff <= 1e-5))
+        max_diff.append(diff.max())
+        na = np.linalg.norm(np.asarray(act_r))
+        d_action.append(np.linalg.norm(np.asarray(act_f) - np.asarray(act_r)) / max(na, 1e-12))
+        npl = np.linalg.norm(np.asarray(st_r.nominal))
+        d_plan.append(np.linalg.norm(np.asarray(st_f.nominal) - np.asarray(st_r.nominal)) / max(npl, 1e-12))
+    ref_med = float(np.median(ref_times))
+    return dict(
+        links=links, rep=rep, H=horizon, med=med, p95=p95, compile=first - med,
+        ref_med=ref_med, ref_n=len(ref_times), ref_compile=ref_first - ref_med, ratio=ref_med / med,
+        same_exact=float(np.mean(same_exact)), same_tol=float(np.mean(same_tol)), max_diff=float(np.max(max_diff)),
+        d_action=float(np.max(d_action)), d_plan=float(np.max(d_plan)),
+    )
+
+
+HEADER = (
+    f"{'links':>5} {'representation':<16} {'H':>3} {'median ms':>10} {'p95 ms':>8} {'compile s':>9} "
+    f"{'brute ms':>9} {'n':>2} {'brute/bp':>9} {'same':>8} {'<=1e-5':>8} {'max |dd| m':>10} {'d action':>9} {'d plan':>9}"
+)
+
+
+def fmt(r):
+    return (
+        f"{r['links']:>5} {r['rep']:<16} {r['H']:>3} {1e3 * r['med']:>10.1f} {1e3 * r['p95']:>8.1f} {r['compile']:>9.1f} "
+        f"{1e3 * r['ref_med']:>9.0f} {r['ref_n']:>2} {r['ratio']:>9.1f} {100 * r['same_exact']:>7.3f}% "
+        f"{100 * r['same_tol']:>7.3f}% {r['max_diff']:>10.2e} {r['d_action']:>9.1e} {r['d_plan']:>9.1e}"
+    )
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--links", type=int, nargs="+", default=[4, 5, 7])
+    p.add_argument("--samples", type=int, default=800)
+    p.add_argument("--horizon", type=int, default=20)
+    p.add_argument("--horizon-long", type=int, default=7, help="horizon for > 6 links (release)")
+    p.add_argument("--same-horizon", action="store_true")
+    p.add_argument("--points", type=int, default=500)
+    p.add_argument("--steps", type=int, default=20, help="timed broad-phase steps after compilation")
+    p.add_argument("--ref-steps", type=int, default=3, help="timed brute-force steps (same inputs)")
+    p.add_argument("--reps", default="ncedf,spheres,pointcloud:1000,pointcloud:5000,exact")
+    p.add_argument("--k1", type=int, default=MPPIConfig.k1)
+    p.add_argument("--k2", type=int, default=MPPIConfig.k2)
+    p.add_argument("--model", default=None, help="N-CEDF weights (default: the shipped model)")
+    p.add_argument("--random-model", action="store_true", help="untrained 4x16 network (timing only)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--quick", action="store_true", help="smoke run: 4 links, 64 samples, H 8, few steps")
+    args = p.parse_args(argv)
+    if args.quick:
+        args.links, args.samples, args.horizon, args.steps, args.ref_steps = [4], 64, 8, 3, 2
+        args.reps = "ncedf,spheres,pointcloud:1000,exact"
+    args.ref_steps = max(1, min(args.ref_steps, args.steps))
+    reps = [r.strip() for r in args.reps.split(",") if r.strip()]
+
+    model = None
+    if "ncedf" in reps:
+        from ncedf import model as model_mod
+
+        if args.random_model:
+            cfg = model_mod.ModelConfig()
+            model = model_mod.NCEDF(model_mod.init_params(jax.random.PRNGKey(0), cfg), cfg, RobotSpec(1))
+            print("NOTE: untrained random 4x16 network: timings only, agreement not meaningful")
+        else:
+            model = model_mod.load_model(args.model)
+    points = cluttered_points(args.points, args.seed)
+    print(
+        f"jax {jax.__version__} on {jax.devices()[0].platform}; samples {args.samples}, points {len(points)}, "
+        f"k1 {args.k1}, k2 {args.k2}; broad phase timed over {args.steps} steps, brute force over "
+        f"{args.ref_steps} steps on the same inputs (after a warm-up call each)"
+    )
+    print(HEADER)
+    sys.stdout.flush()
+    for links in args.links:
+        for rep in reps:
+            print(fmt(run(links, rep, args, model, points)))
+            sys.stdout.flush()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,358 @@
+"""MPPI controller for a multi-link continuum robot (paper Sec. V).
+
+Dynamics (paper eq. 3) on the arc lengths: ``x' = x + u dt``. Sampled control
+rates are projected so each link's three rates sum to zero (the backbone is
+inextensible) and then scaled per link so that no rate exceeds the bound
+(scaling keeps the zero sum; element-wise clipping would not).
+
+Costs (paper Sec. V-B), over the rollout states ``x^1 .. x^H`` of each sample
+``j`` (the paper sums ``k = 0 .. H-1``; the ``k = 0`` term is the current state,
+the same for every sample, so it cannot change the min-max normalised weights
+and is left out; the terminal state ``x^H`` enters only through the release's
+terminal weights, 0 by default):
+
+* goal: ``w_goal * ||T_ee(x^k) - T_G||_F`` for a pose goal (4, 4), or
+  ``w_goal * ||p_ee(x^k) - p_G||`` for a position goal (3,). The goal kind is
+  decided by the goal's shape at trace time (two compiled variants).
+* collision: ``w_coll / max(min_p Gamma(p, x^k) - delta_s, epsilon)``.
+* state: ``w_state * sum over links and chambers of (l_min - l)_+ + (l - l_max)_+``.
+* optional (release): terminal goal / collision weights at ``x^H``, and a
+  control-perturbation cost ``w_perturbation * sum_k U_k . eps_k / sigma^2``.
+
+Update: ``C~ = (C - min C) / (max C - min C)``, ``w = exp(-C~ / lambda)``,
+``U <- (1 - alpha_u) U + alpha_u sum_j w_j u^j / sum_j w_j``; the first control is
+executed, the plan is shifted by one step (the last control repeated, or zero).
+
+The jitted core is pure: :meth:`MPPI.core_step`. :meth:`MPPI.step` validates its
+inputs, pads the obstacle cloud to ``max_points`` with a mask, and calls it, so
+new states, goals and obstacle clouds (of any size up to the capacity) reuse one
+compiled program per goal kind.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ncedf.broad_phase import rollout_min_distances_broad, rollout_min_distances_brute
+from ncedf.robot import RobotSpec, forward_kinematics, state_violation, InvalidStateError
+
+
+@dataclasses.dataclass(frozen=True)
+class MPPIConfig:
+    """MPPI settings; defaults are the paper's (Sec. VI-A).
+
+    Attributes:
+      samples: rollouts N.  horizon: H steps.
+      covariance: sampling covariance sigma^2 (Sigma = sigma^2 I), (m/s)^2.
+      temperature: lambda.  alpha_u: smoothing of the update, in (0, 1].
+      w_goal, w_coll, w_state: cost weights.
+      w_goal_terminal, w_coll_terminal: terminal weights at x^H (release: 22, 1.1).
+      w_perturbation: control-perturbation cost weight (release: 0.1).
+      noise_clip: clip each noise component to +-noise_clip (release: 0.5); None = off.
+      safety_margin: delta_s, m.  epsilon: floor of the collision-cost denominator, m.
+      control_bound: largest |rate|, m/s.  dt: step, s.
+      max_points: obstacle-cloud capacity (clouds are padded to it with a mask).
+      broad_phase: evaluate the representation on broad-phase pairs only
+        (``ncedf.broad_phase``); False = brute force over every point.
+      k1, k2, capsule_segments: broad-phase sizes (see ``ncedf.broad_phase``).
+      shift_fill: "last" (repeat the last control) or "zero" after the shift.
+      limit_action: scale the executed action so the next state stays within
+        the arc-length limits (rollouts keep the soft state cost).
+    """
+
+    samples: int = 800
+    horizon: int = 20
+    covariance: float = 0.05
+    temperature: float = 0.02
+    alpha_u: float = 1.0
+    w_goal: float = 12.0
+    w_coll: float = 1.1
+    w_state: float = 50.0
+    w_goal_terminal: float = 0.0
+    w_coll_terminal: float = 0.0
+    w_perturbation: float = 0.0
+    noise_clip: float | None = None
+    safety_margin: float = 0.05
+    epsilon: float = 0.01
+    control_bound: float = 0.3
+    dt: float = 0.05
+    max_points: int = 512
+    broad_phase: bool = True
+    k1: int = 64
+    k2: int = 16
+    capsule_segments: int = 2
+    shift_fill: str = "last"
+    limit_action: bool = True
+
+    def __post_init__(self):
+        def num(name):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+                raise ValueError(f"MPPIConfig.{name} must be a number, got {value!r}")
+            if not math.isfinite(value):
+                raise ValueError(f"MPPIConfig.{name} must be finite, got {value!r}")
+            return value
+
+        for name in ("samples", "horizon", "max_points", "k1", "k2", "capsule_segments"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+                raise ValueError(f"MPPIConfig.{name} must be an integer, got {value!r}")
+            if value < 1:
+                raise ValueError(f"MPPIConfig.{name} must be >= 1, got {value}")
+        for name in ("covariance", "temperature", "control_bound", "dt", "epsilon"):
+            if num(name) <= 0:
+                raise ValueError(f"MPPIConfig.{name} must be > 0, got {getattr(self, name)}")
+        for name in ("w_goal", "w_coll", "w_state", "w_goal_terminal", "w_coll_terminal", "w_perturbation", "safety_margin"):
+            if num(name) < 0:
+                raise ValueError(f"MPPIConfig.{name} must be >= 0, got {getattr(self, name)}")
+        if not 0 < num("alpha_u") <= 1:
+            raise ValueError(f"MPPIConfig.alpha_u must be in (0, 1], got {self.alpha_u}")
+        if self.noise_clip is not None and num("noise_clip") <= 0:
+            raise ValueError(f"MPPIConfig.noise_clip must be > 0 or None, got {self.noise_clip}")
+        for name in ("broad_phase", "limit_action"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"MPPIConfig.{name} must be a bool, got {getattr(self, name)!r}")
+        if self.shift_fill not in ("last", "zero"):
+            raise ValueError(f"MPPIConfig.shift_fill must be 'last' or 'zero', got {self.shift_fill!r}")
+
+
+class MPPIState(NamedTuple):
+    """Controller state (a pytree): nominal controls (H, M, 3) m/s and a PRNG key."""
+
+    nominal: jnp.ndarray
+    key: jnp.ndarray
+
+
+class MPPIInfo(NamedTuple):
+    """Diagnostics of one step (a pytree of arrays).
+
+    plan: (H + 1, 3) end-effector positions along the updated plan, from the
+      current state, m.
+    predicted_min_distance: min over x^1..x^H of the selected rollout's
+      predicted min distance (selected = the lowest-cost sample), m.
+    current_min_distance: predicted min distance at the current state, m.
+    cost_goal, cost_coll, cost_state, cost_perturbation: the selected rollout's
+      weighted cost terms.
+    cost_min, cost_max: the range of total costs over the samples.
+    ess: effective sample size of the weights, ``1 / sum w^2`` (w normalised).
+    selected: index of the selected rollout.
+    rollout_min_distance: (N, H) predicted min distance of every rollout state.
+    """
+
+    plan: jnp.ndarray
+    predicted_min_distance: jnp.ndarray
+    current_min_distance: jnp.ndarray
+    cost_goal: jnp.ndarray
+    cost_coll: jnp.ndarray
+    cost_state: jnp.ndarray
+    cost_perturbation: jnp.ndarray
+    cost_min: jnp.ndarray
+    cost_max: jnp.ndarray
+    ess: jnp.ndarray
+    selected: jnp.ndarray
+    rollout_min_distance: jnp.ndarray
+
+
+def project_controls(u: jnp.ndarray, bound: float) -> jnp.ndarray:
+    """Make each link's three rates sum to zero, then scale so ``max |u| <= bound``.
+
+    Args:
+      u: (..., 3) rates per link, m/s.
+    """
+    u = u - jnp.mean(u, axis=-1, keepdims=True)
+    peak = jnp.max(jnp.abs(u), axis=-1, keepdims=True)
+    return u * jnp.minimum(1.0, bound / jnp.maximum(peak, 1e-30))
+
+
+def limit_to_state_bounds(arc: jnp.ndarray, u: jnp.ndarray, dt: float, spec: RobotSpec) -> jnp.ndarray:
+    """Scale each link's rate (keeping the zero sum) so ``arc + u dt`` stays in the limits.
+
+    ``arc`` (M, 3) is assumed within the limits; returns u (M, 3) scaled per link
+    by the largest factor in [0, 1] that keeps every chamber in [l_min, l_max].
+    """
+    step = u * dt
+    room = jnp.where(step > 0, spec.l_max - arc, arc - spec.l_min)
+    room = jnp.maximum(room, 0.0)
+    ratio = jnp.where(jnp.abs(step) > 0, room / jnp.maximum(jnp.abs(step), 1e-30), jnp.inf)
+    return u * jnp.minimum(1.0, jnp.min(ratio, axis=-1, keepdims=True))
+
+
+class MPPI:
+    """MPPI for ``spec`` with a shape representation from :func:`ncedf.shapes.make_shape`.
+
+    Use ``state = mppi.init(key)`` then
+    ``action, state, info = mppi.step(state, arc, goal, obstacle_points)``.
+    """
+
+    def __init__(self, spec: RobotSpec, shape, config: MPPIConfig | None = None):
+        if not isinstance(spec, RobotSpec):
+            raise ValueError(f"spec must be a RobotSpec, got {type(spec).__name__}")
+        config = MPPIConfig() if config is None else config
+        if not isinstance(config, MPPIConfig):
+            raise ValueError(f"config must be an MPPIConfig, got {type(config).__name__}")
+        for name in ("min_distance", "prepare", "pair_distances"):
+            if not hasattr(shape, name):
+                raise ValueError(f"shape must be a representation from ncedf.shapes.make_shape, got {shape!r}")
+        if shape.spec.n_links != spec.n_links:
+            raise ValueError(f"the shape is for {shape.spec.n_links} links, the robot has {spec.n_links}")
+        self.spec = spec
+        self.shape = shape
+        self.config = config
+        self._core = jax.jit(self._core_step)
+
+    # ------------------------------------------------------------------ pure
+    def init(self, key) -> MPPIState:
+        """Zero nominal controls (paper: the initial reference is zero) and the key."""
+        c = self.config
+        return MPPIState(jnp.zeros((c.horizon, self.spec.n_links, 3), jnp.float32), jnp.asarray(key))
+
+    def rollout_min_distances(self, shape, arcs, points, mask):
+        """(N, H) min distance per rollout state, by the broad phase or brute force."""
+        c = self.config
+        if c.broad_phase:
+            return rollout_min_distances_broad(shape, arcs, points, mask, c.k1, c.k2, c.capsule_segments)
+        return rollout_min_distances_brute(shape, arcs, points, mask)
+
+    def _goal_distance(self, frames_ee, goal):
+        if goal.shape == (4, 4):
+            return jnp.sqrt(jnp.sum((frames_ee - goal) ** 2, axis=(-2, -1)))
+        return jnp.sqrt(jnp.sum((frames_ee[..., :3, 3] - goal) ** 2, axis=-1))
+
+    def _core_step(self, shape, state: MPPIState, arc, goal, points, mask):
+        c, spec = self.config, self.spec
+        key, k_noise = jax.random.split(state.key)
+        nominal = state.nominal
+        sigma = math.sqrt(c.covariance)
+        eps = sigma * jax.random.normal(k_noise, (c.samples,) + nominal.shape, nominal.dtype)
+        if c.noise_clip is not None:
+            eps = jnp.clip(eps, -c.noise_clip, c.noise_clip)
+        u = project_controls(nominal[None] + eps, c.control_bound)  # (N, H, M, 3)
+        arcs = arc[None, None] + c.dt * jnp.cumsum(u, axis=1)  # x^1 .. x^H
+
+        # Per-state terms.
+        ee = forward_kinematics(arcs, spec)[..., -1, :, :]
+        goal_d = self._goal_distance(ee, goal)  # (N, H)
+        dist = self.rollout_min_distances(shape, arcs, points, mask)  # (N, H)
+        coll = 1.0 / jnp.maximum(dist - c.safety_margin, c.epsilon)
+        viol = jnp.sum(jnp.maximum(spec.l_min - arcs, 0.0) + jnp.maximum(arcs - spec.l_max, 0.0), axis=(-2, -1))
+
+        running = (jnp.arange(c.horizon) < c.horizon - 1).astype(arcs.dtype)  # x^1 .. x^{H-1}
+        terminal = 1.0 - running  # x^H
+        c_goal = jnp.sum(goal_d * (c.w_goal * running + c.w_goal_terminal * terminal), axis=1)
+        c_coll = jnp.sum(coll * (c.w_coll * running + c.w_coll_terminal * terminal), axis=1)
+        c_state = c.w_state * jnp.sum(viol * running, axis=1)
+        c_pert = c.w_perturbation * jnp.sum(nominal[None] * eps, axis=(1, 2, 3)) / c.covariance
+        total = c_goal + c_coll + c_state + c_pert
+
+        lo, hi = jnp.min(total), jnp.max(total)
+        spread = hi - lo
+        norm = jnp.where(spread > 0, (total - lo) / jnp.where(spread > 0, spread, 1.0), 0.0)
+        w = jnp.exp(-norm / c.temperature)
+        w = w / jnp.sum(w)
+        ess = 1.0 / jnp.sum(w * w)
+        updated = (1.0 - c.alpha_u) * nominal + c.alpha_u * jnp.einsum("n,nhmc->hmc", w, u)
+
+        action = updated[0]
+        if c.limit_action:
+            action = limit_to_state_bounds(arc, action, c.dt, spec)
+        fill = updated[-1:] if c.shift_fill == "last" else jnp.zeros_like(updated[-1:])
+        next_nominal = jnp.concatenate([updated[1:], fill], axis=0)
+
+        plan_arcs = jnp.concatenate([arc[None], arc[None] + c.dt * jnp.cumsum(updated, axis=0)], axis=0)
+        plan = forward_kinematics(plan_arcs, spec)[:, -1, :3, 3]
+        best = jnp.argmin(total)
+        info = MPPIInfo(
+            plan=plan,
+            predicted_min_distance=jnp.min(dist[best]),
+            current_min_distance=shape.min_distance(points, arc, mask),
+            cost_goal=c_goal[best],
+            cost_coll=c_coll[best],
+            cost_state=c_state[best],
+            cost_perturbation=c_pert[best],
+            cost_min=lo,
+            cost_max=hi,
+            ess=ess,
+            selected=best,
+            rollout_min_distance=dist,
+        )
+        return action, MPPIState(next_nominal, key), info
+
+    def core_step(self, state: MPPIState, arc, goal, points, mask):
+        """The jitted pure step: no validation; ``points`` (max_points, 3), ``mask`` (max_points,)."""
+        return self._core(self.shape, state, arc, goal, points, mask)
+
+    # ------------------------------------------------------------- validated
+    def pad_points(self, obstacle_points):
+        """Validate an obstacle cloud (P, 3) and pad it to the capacity: (points, mask)."""
+        cap = self.config.max_points
+        if obstacle_points is None:
+            pts = np.zeros((0, 3), np.float32)
+        else:
+            pts = np.asarray(obstacle_points, dtype=np.float32)
+            if pts.size == 0:
+                pts = pts.reshape(0, 3)
+        if pts.ndim != 2 or pts.shape[1] != 3:
+            raise ValueError(f"obstacle_points must have shape (P, 3), got {pts.shape}")
+        if not np.all(np.isfinite(pts)):
+            bad = int(np.argwhere(~np.isfinite(pts))[0, 0])
+            raise ValueError(f"obstacle_points contain NaN or inf (first at row {bad}: {pts[bad].tolist()})")
+        if pts.shape[0] > cap:
+            raise ValueError(
+                f"{pts.shape[0]} obstacle points exceed the capacity max_points={cap}; "
+                "raise MPPIConfig.max_points"
+            )
+        padded = np.zeros((cap, 3), np.float32)
+        padded[: pts.shape[0]] = pts
+        mask = np.zeros(cap, bool)
+        mask[: pts.shape[0]] = True
+        return jnp.asarray(padded), jnp.asarray(mask)
+
+    def check_goal(self, goal):
+        """Validate a goal: position (3,) or pose (4, 4), finite."""
+        g = np.asarray(goal, dtype=np.float32)
+        if g.shape not in ((3,), (4, 4)):
+            raise ValueError(f"goal must be a position (3,) or a pose (4, 4), got shape {g.shape}")
+        if not np.all(np.isfinite(g)):
+            raise ValueError(f"goal contains NaN or inf: {g.tolist()}")
+        return jnp.asarray(g)
+
+    def check_state(self, arc):
+        """Validate the robot state (M, 3): shape, finite, limits, sum 3L (InvalidStateError)."""
+        reason = state_violation(arc, self.spec)
+        if reason is not None:
+            raise InvalidStateError(f"invalid robot state: {reason}")
+        return jnp.asarray(np.asarray(arc, dtype=np.float32))
+
+    def step(self, state: MPPIState, arc, goal, obstacle_points=None):
+        """One MPPI iteration with validated inputs.
+
+        Args:
+          state: from ``init`` or the previous step.
+          arc: (M, 3) current arc lengths, m (a valid state).
+          goal: position (3,) or pose (4, 4) in the world frame.
+          obstacle_points: (P, 3) world points, P <= max_points; None or empty
+            for no obstacles.
+        Returns:
+          action (M, 3) m/s, the next state, and an :class:`MPPIInfo`.
+        Raises:
+          ValueError (InvalidStateError for the state) naming the bad value;
+          FloatingPointError if the computation produced a non-finite action.
+        """
+        if not isinstance(state, MPPIState):
+            raise ValueError(f"state must be an MPPIState from init(), got {type(state).__name__}")
+        expected = (self.config.horizon, self.spec.n_links, 3)
+        if tuple(np.shape(state.nominal)) != expected:
+            raise ValueError(f"state.nominal must have shape {expected}, got {np.shape(state.nominal)}")
+        arc = self.check_state(arc)
+        goal = self.check_goal(goal)
+        points, mask = self.pad_points(obstacle_points)
+        action, new_state, info = self.core_step(state, arc, goal, points, mask)
+        if not bool(jnp.all(jnp.isfinite(action))):
+            raise FloatingPointError("MPPI produced a non-finite action; the inputs or the shape model are broken")
+        return action, new_state, info
