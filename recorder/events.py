@@ -33,11 +33,11 @@ class Step:
     metrics: dict[str, float]
     mesh_vertices: np.ndarray | None = None  # (V, 3) float32
     mesh_triangles: np.ndarray | None = None  # (F, 3) uint32
-    backbone: list[np.ndarray] | None = None  # M polylines, each (K, 3) float32
+    backbone: np.ndarray | list[np.ndarray] | None = None  # (M, K, 3) or M polylines (K_i, 3); float32
     obstacle_points: np.ndarray | None = None  # (P, 3) float32
     obstacle_shapes: Shapes | None = None
     goal_position: np.ndarray | None = None  # (3,) float64
-    goal_rotation: np.ndarray | None = None  # (3, 3) float64
+    goal_rotation: np.ndarray | None = None  # (3, 3) float64, only when a pose was given
     plan: np.ndarray | None = None  # (H, 3) float32
     state: dict[str, np.ndarray] | None = None  # arc_lengths (M,3), theta (M,), phi (M,), ee_position (3,); float64
 
@@ -50,6 +50,17 @@ def _points(name: str, value: Any, dtype=np.float32) -> np.ndarray:
     arr = np.asarray(value, dtype=dtype)
     if arr.ndim != 2 or arr.shape[1] != 3:
         raise ValueError(f"{name} must have shape (N, 3), got {arr.shape}")
+    return arr
+
+
+def _polylines(value: Any) -> np.ndarray | list[np.ndarray]:
+    """(M, K, 3) stays one array (cheaper to log); polylines of different lengths stay a list."""
+    try:
+        arr = np.asarray(value, dtype=np.float32)
+    except ValueError:  # ragged
+        return [_points("backbone polyline", line) for line in value]
+    if arr.ndim != 3 or arr.shape[2] != 3:
+        raise ValueError(f"backbone must have shape (M, K, 3) or be a list of (K, 3) polylines, got {arr.shape}")
     return arr
 
 
@@ -90,7 +101,7 @@ def make_step(
     if goal is not None:
         g = np.asarray(goal, dtype=np.float64)
         if g.shape == (3,):
-            goal_position, goal_rotation = g, np.eye(3)
+            goal_position = g
         elif g.shape == (4, 4):
             goal_position, goal_rotation = g[:3, 3].copy(), g[:3, :3].copy()
         else:
@@ -120,7 +131,7 @@ def make_step(
         metrics=clean_metrics,
         mesh_vertices=None if mesh_vertices is None else _points("mesh_vertices", mesh_vertices),
         mesh_triangles=triangles,
-        backbone=None if backbone is None else [_points("backbone polyline", line) for line in backbone],
+        backbone=None if backbone is None else _polylines(backbone),
         obstacle_points=None if obstacle_points is None else _points("obstacle_points", obstacle_points),
         obstacle_shapes=None if obstacle_shapes is None else _shapes(obstacle_shapes),
         goal_position=goal_position,

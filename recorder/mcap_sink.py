@@ -19,10 +19,12 @@ import foxglove
 import numpy as np
 from foxglove import channels as fc
 from foxglove import messages as fm
+from foxglove.mcap import MCAPWriteOptions
 
 from recorder import schema
 from recorder.events import Step
-from recorder.mesh_proto import encode_indices, encode_mesh_update
+from recorder.scene_proto import (ENTITY_LINES, ENTITY_TRIANGLES, LINE_POINTS, TRIANGLE_POINTS, encode_indices,
+                                  encode_points, encode_scene_update)
 
 _FRAME = "world"
 _MESH_COLOR = fm.Color(r=0.75, g=0.75, b=0.8, a=1.0)
@@ -37,17 +39,15 @@ def _timestamp(ns: int) -> fm.Timestamp:
     return fm.Timestamp(sec=ns // 1_000_000_000, nsec=ns % 1_000_000_000)
 
 
-def _point3s(points: np.ndarray) -> list[fm.Point3]:
-    return [fm.Point3(x=x, y=y, z=z) for x, y, z in np.asarray(points, dtype=np.float64).tolist()]
-
-
 def _vector3(v) -> fm.Vector3:
     x, y, z = (float(c) for c in v)
     return fm.Vector3(x=x, y=y, z=z)
 
 
-def _quaternion(r: np.ndarray) -> fm.Quaternion:
-    """Rotation matrix (3, 3) -> unit quaternion (robust branch on the largest diagonal term)."""
+def _quaternion(r: np.ndarray | None) -> fm.Quaternion:
+    """Rotation matrix (3, 3) (None: identity) -> unit quaternion (branch on the largest diagonal term)."""
+    if r is None:
+        return fm.Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
     m = np.asarray(r, dtype=np.float64)
     t = np.trace(m)
     if t > 0:
@@ -64,14 +64,22 @@ def _quaternion(r: np.ndarray) -> fm.Quaternion:
     return fm.Quaternion(x=float(x), y=float(y), z=float(z), w=float(w))
 
 
-def _lines(polylines, ns: int, entity_id: str, color: fm.Color, thickness: float) -> fm.SceneUpdate:
-    prims = [
-        fm.LinePrimitive(type=fm.LinePrimitiveLineType.LineStrip, points=_point3s(p), color=color, thickness=thickness)
-        for p in polylines
-    ]
-    return fm.SceneUpdate(
-        entities=[fm.SceneEntity(id=entity_id, frame_id=_FRAME, timestamp=_timestamp(ns), lines=prims)]
-    )
+def _entity(entity_id: str, ns: int) -> fm.SceneEntity:
+    return fm.SceneEntity(id=entity_id, frame_id=_FRAME, timestamp=_timestamp(ns))
+
+
+def _lines(polylines, ns: int, entity_id: str, color: fm.Color, thickness: float) -> bytes:
+    """A SceneUpdate with one line strip per (K, 3) polyline."""
+    head = fm.LinePrimitive(type=fm.LinePrimitiveLineType.LineStrip, color=color, thickness=thickness).encode()
+    return encode_scene_update(_entity(entity_id, ns),
+                               [(ENTITY_LINES, [head, encode_points(p, LINE_POINTS)]) for p in polylines])
+
+
+def _mesh(vertices: np.ndarray, indices: bytes, ns: int) -> bytes:
+    """A SceneUpdate with the robot mesh as one triangle list (indices from `encode_indices`)."""
+    head = fm.TriangleListPrimitive(color=_MESH_COLOR).encode()
+    return encode_scene_update(_entity("robot", ns),
+                               [(ENTITY_TRIANGLES, [head, encode_points(vertices, TRIANGLE_POINTS), indices])])
 
 
 def _shapes(sh, ns: int) -> fm.SceneUpdate:
@@ -83,7 +91,8 @@ def _shapes(sh, ns: int) -> fm.SceneUpdate:
         fm.CubePrimitive(pose=fm.Pose(position=_vector3(c)), size=_vector3(s), color=_OBSTACLE_COLOR)
         for c, s in zip(sh.box_centers, sh.box_sizes)
     ]
-    entity = fm.SceneEntity(id="obstacles", frame_id=_FRAME, timestamp=_timestamp(ns), spheres=spheres, cubes=cubes)
+    entity = fm.SceneEntity(id="obstacles", frame_id=_FRAME, timestamp=_timestamp(ns), spheres=spheres,
+                            cubes=cubes)
     return fm.SceneUpdate(entities=[entity])
 
 
@@ -102,13 +111,17 @@ class McapSink:
 
     def __init__(self, path: Path, *, overwrite: bool):
         self._ctx = foxglove.Context()
-        self._writer = foxglove.open_mcap(str(path), allow_overwrite=overwrite, context=self._ctx)
+        self._writer = foxglove.open_mcap(str(path), allow_overwrite=overwrite, context=self._ctx,
+                                         writer_options=MCAPWriteOptions(compression_threads=0))
         ctx = self._ctx
+        # Mesh and lines are encoded by `scene_proto` (raw protobuf bytes of foxglove.SceneUpdate).
         self._mesh = foxglove.Channel(schema.MESH, schema=fm.SceneUpdate.get_schema(), message_encoding="protobuf",
                                       context=ctx)
-        self._backbone = fc.SceneUpdateChannel(schema.BACKBONE, context=ctx)
+        self._backbone = foxglove.Channel(schema.BACKBONE, schema=fm.SceneUpdate.get_schema(),
+                                          message_encoding="protobuf", context=ctx)
+        self._plan = foxglove.Channel(schema.PLAN, schema=fm.SceneUpdate.get_schema(), message_encoding="protobuf",
+                                      context=ctx)
         self._shapes = fc.SceneUpdateChannel(schema.OBSTACLE_SHAPES, context=ctx)
-        self._plan = fc.SceneUpdateChannel(schema.PLAN, context=ctx)
         self._points = fc.PointCloudChannel(schema.OBSTACLE_POINTS, context=ctx)
         self._goal = fc.FrameTransformChannel(schema.GOAL, context=ctx)
         self._log = fc.LogChannel(schema.LOG, context=ctx)
@@ -126,9 +139,7 @@ class McapSink:
         if log_mesh and s.mesh_vertices is not None:
             if first_mesh:
                 self._indices = encode_indices(s.mesh_triangles)
-            data = encode_mesh_update(s.mesh_vertices, self._indices, entity_id="robot", frame_id=_FRAME,
-                                      sec=ns // 1_000_000_000, nsec=ns % 1_000_000_000, color=_MESH_COLOR)
-            self._mesh.log(data, log_time=ns)
+            self._mesh.log(_mesh(s.mesh_vertices, self._indices, ns), log_time=ns)
         if s.backbone is not None:
             self._backbone.log(_lines(s.backbone, ns, "backbone", _LINE_COLOR, 0.004), log_time=ns)
         if s.obstacle_points is not None:

@@ -98,7 +98,7 @@ def test_rrd_display_entities_hold_what_was_sent(recorded):
         np.testing.assert_array_equal(np.asarray(strips), s["backbone"].astype(np.float32))
         np.testing.assert_array_equal(np.asarray(cols[(schema.PLAN, "LineStrips3D:strips")][k][0]),
                                       s["plan"].astype(np.float32))
-        np.testing.assert_array_equal(per_step(schema.GOAL, "Transform3D:translation")[k][0],
+        np.testing.assert_array_equal(per_step(schema.GOAL, "Points3D:positions")[k][0],
                                       s["goal"].astype(np.float32))
         spheres = s["obstacle_shapes"]["spheres"]
         np.testing.assert_allclose(per_step(f"{schema.OBSTACLE_SHAPES}/spheres", "Ellipsoids3D:centers")[k],
@@ -163,6 +163,7 @@ def test_mcap_display_topics_hold_what_was_sent(recorded):
 
 
 def test_pose_goal_becomes_a_transform(tmp_path):
+    """A (4, 4) goal: Rerun Transform3D with its rotation, MCAP FrameTransform with the same quaternion."""
     angle = 0.3
     pose = np.eye(4)
     pose[:3, :3] = [[np.cos(angle), -np.sin(angle), 0], [np.sin(angle), np.cos(angle), 0], [0, 0, 1]]
@@ -176,6 +177,7 @@ def test_pose_goal_becomes_a_transform(tmp_path):
     cols = _rrd_columns(tmp_path / "g.rrd")
     np.testing.assert_allclose(np.asarray(cols[(schema.GOAL, "Transform3D:mat3x3")][0]).reshape(3, 3).T,
                                pose[:3, :3], atol=1e-7)
+    np.testing.assert_allclose(cols[(schema.GOAL, "Transform3D:translation")][0], pose[:3, 3], rtol=1e-6)
 
 
 def test_files_validate_with_rerun_cli(recorded, tmp_path):

@@ -1,0 +1,108 @@
+"""Recorder benchmark: logging overhead per step, file sizes, and `load_runs` over many runs.
+
+    python bench/recorder.py                          # 7 links, 300 steps, mesh every 1, 2, 5 steps
+    python bench/recorder.py --mesh-every 1 --steps 100
+    python bench/recorder.py --load-runs 4000         # also time load_runs over 4000 small runs
+
+Synthetic 7-link data (`recorder.synthetic`): a mesh of 7 tubes x 30 rings x 32 points = 6720
+vertices, 500 obstacle points, a 20-point plan, backbone lines, state and metrics. The step data
+is made before timing; the time covers `log_step` (conversion included) plus opening and
+closing the files, for the Rerun sink alone, the MCAP sink alone and both. The budget is
+3 ms per step with both sinks; each line prints its ratio to it (CPU time, see `time_run`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+# Run as a script, this file's folder comes first on sys.path and its name would shadow the package.
+sys.path = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
+
+from recorder import Recorder, load_runs
+from recorder.synthetic import SyntheticRun
+
+BUDGET_MS = 3.0
+CONFIGS = {"rrd": ("rrd",), "mcap": ("mcap",), "both": ("rrd", "mcap")}
+
+
+def time_run(folder: Path, name: str, formats, run: SyntheticRun, steps: list[dict], mesh_every: int,
+             flush_every: int) -> tuple[float, float]:
+    """Record `steps` once; (wall, CPU) seconds from opening to closed files.
+
+    CPU time is this process's, all threads (Rerun's writer threads, zstd) included: the cost the
+    recorder takes from the controller, and less disturbed than wall time on a busy machine.
+    """
+    start, cpu = time.perf_counter(), time.process_time()
+    with Recorder(folder / name, run.meta, formats=formats, mesh_every=mesh_every, flush_every=flush_every,
+                  safety_margin=0.02, overwrite=True) as rec:
+        for k, kwargs in enumerate(steps):
+            rec.log_step(k, 0.05 * k, **kwargs)
+        rec.finish({"outcome": "success", "steps": len(steps)})
+    return time.perf_counter() - start, time.process_time() - cpu
+
+
+def bench_logging(args, folder: Path) -> None:
+    run = SyntheticRun(links=args.links, seed=0)
+    steps = [run.step(k) for k in range(args.steps)]
+    print(f"{args.links} links, mesh {run.triangles.max() + 1} vertices / {len(run.triangles)} triangles, "
+          f"{run.n_points} obstacle points, {run.horizon}-point plan, {args.steps} steps, best of {args.repeat}")
+    print(f"{'mesh_every':>10} {'sink':>5} {'wall ms/step':>13} {'CPU ms/step':>12} {'CPU x budget':>13} "
+          f"{'MB/100 steps':>24}")
+    time_run(folder, "warmup", ("rrd", "mcap"), run, steps[:5], 1, args.flush_every)  # imports, first chunk
+    for mesh_every in args.mesh_every:
+        for label, formats in CONFIGS.items():
+            name = f"{label}-{mesh_every}"
+            times = [time_run(folder, name, formats, run, steps, mesh_every, args.flush_every)
+                     for _ in range(args.repeat)]
+            wall, cpu = (min(t[i] for t in times) / args.steps * 1e3 for i in (0, 1))
+            sizes = ", ".join(f"{fmt} {(folder / f'{name}.{fmt}').stat().st_size / args.steps * 100 / 1e6:.1f}"
+                              for fmt in formats)
+            print(f"{mesh_every:>10} {label:>5} {wall:>13.2f} {cpu:>12.2f} {cpu / BUDGET_MS:>13.2f} {sizes:>24}")
+
+
+def bench_load_runs(args, folder: Path) -> None:
+    """N runs of `--load-steps` steps (state, metrics, backbone, cloud, plan; no mesh) per format."""
+    run = SyntheticRun(links=args.links, seed=0)
+    steps = [{k: v for k, v in run.step(k).items() if k not in ("mesh_vertices", "mesh_triangles")}
+             for k in range(args.load_steps)]
+    start = time.perf_counter()
+    for fmt in ("rrd", "mcap"):
+        for i in range(args.load_runs):
+            with Recorder(folder / fmt / f"run{i:05d}", {**run.meta, "seed": i}, formats=(fmt,)) as rec:
+                for k, kwargs in enumerate(steps):
+                    rec.log_step(k, 0.05 * k, **kwargs)
+                rec.finish({"outcome": "success", "steps": len(steps)})
+    print(f"wrote 2 x {args.load_runs} runs of {args.load_steps} steps in {time.perf_counter() - start:.0f} s")
+    for fmt in ("mcap", "rrd"):
+        start = time.perf_counter()
+        runs, table = load_runs(folder / fmt)
+        elapsed = time.perf_counter() - start
+        assert len(runs) == args.load_runs and len(table) == args.load_runs * args.load_steps
+        print(f"load_runs over {len(runs)} .{fmt} runs: {elapsed:.2f} s ({elapsed / len(runs) * 1e3:.2f} ms/run), "
+              f"steps table {table.shape}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--links", type=int, default=7)
+    parser.add_argument("--steps", type=int, default=300)
+    parser.add_argument("--mesh-every", type=int, nargs="+", default=[1, 2, 5])
+    parser.add_argument("--flush-every", type=int, default=50)
+    parser.add_argument("--repeat", type=int, default=3, help="runs per configuration; the best is kept")
+    parser.add_argument("--load-runs", type=int, default=0, help="also time load_runs over this many runs")
+    parser.add_argument("--load-steps", type=int, default=20)
+    parser.add_argument("--skip-logging", action="store_true", help="only the load_runs benchmark")
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        if not args.skip_logging:
+            bench_logging(args, Path(tmp))
+        if args.load_runs:
+            bench_load_runs(args, Path(tmp))
+
+
+if __name__ == "__main__":
+    main()
