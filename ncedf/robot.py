@@ -69,10 +69,19 @@ class RobotSpec:
 
     def max_bend(self) -> float:
         """Largest bending angle theta (rad) the arc-length limits admit."""
-        # Every chamber deviates by r theta |cos(.)| <= dl; the worst phi has
-        # max_j |cos(phi + 2 pi j / 3)| = sqrt(3) / 2.
-        dl = min(self.length - self.l_min, self.l_max - self.length)
-        return dl / (self.radius * SQRT3 / 2.0)
+        # Chamber j deviates by v_j = r theta cos(phi + 2 pi j / 3) (shortening),
+        # with sum_j v_j = 0, -hi <= v_j <= lo and theta^2 = (2/3) sum_j v_j^2 / r^2.
+        # This convex function is largest at a vertex of the feasible polygon,
+        # where two chambers sit at a limit; keep the feasible vertices.
+        lo, hi = self.length - self.l_min, self.l_max - self.length
+        vertices = [(lo, lo, -2.0 * lo), (-hi, -hi, 2.0 * hi), (lo, -hi, hi - lo)]
+        tol = 1e-12 * (lo + hi)
+        best = max(
+            sum(v * v for v in vertex)
+            for vertex in vertices
+            if all(-hi - tol <= v <= lo + tol for v in vertex)
+        )
+        return math.sqrt(2.0 * best / 3.0) / self.radius
 
     def straight_state(self) -> jnp.ndarray:
         """The straight initial state: every arc length = L, shape (M, 3)."""
