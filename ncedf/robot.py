@@ -147,7 +147,9 @@ def _even_series(theta_sq: jnp.ndarray):
     safe_sq = jnp.where(small, 1.0, theta_sq)
     t = jnp.sqrt(safe_sq)
     sinc = jnp.where(small, 1.0 - theta_sq / 6.0 + theta_sq**2 / 120.0, jnp.sin(t) / t)
-    versc = jnp.where(small, 0.5 - theta_sq / 24.0 + theta_sq**2 / 720.0, (1.0 - jnp.cos(t)) / safe_sq)
+    # (1 - cos t) / t^2 = sinc(t / 2)^2 / 2, without the cancellation of 1 - cos t
+    half_sinc = jnp.sin(0.5 * t) / (0.5 * t)
+    versc = jnp.where(small, 0.5 - theta_sq / 24.0 + theta_sq**2 / 720.0, 0.5 * half_sinc * half_sinc)
     cos = jnp.where(small, 1.0 - theta_sq / 2.0 + theta_sq**2 / 24.0, jnp.cos(t))
     return sinc, versc, cos
 
