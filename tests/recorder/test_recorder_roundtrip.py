@@ -177,7 +177,7 @@ def test_pose_goal_becomes_a_transform(tmp_path):
     cols = _rrd_columns(tmp_path / "g.rrd")
     np.testing.assert_allclose(np.asarray(cols[(schema.GOAL, "Transform3D:mat3x3")][0]).reshape(3, 3).T,
                                pose[:3, :3], atol=1e-7)
-    np.testing.assert_allclose(cols[(schema.GOAL, "Transform3D:translation")][0], pose[:3, 3], rtol=1e-6)
+    np.testing.assert_allclose(cols[(schema.GOAL, "Transform3D:translation")][0][0], pose[:3, 3], rtol=1e-6, atol=1e-7)
 
 
 def test_files_validate_with_rerun_cli(recorded, tmp_path):
