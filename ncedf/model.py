@@ -1,0 +1,234 @@
+"""The N-CEDF: a per-link MLP composed through the kinematic chain (paper Sec. IV).
+
+``Gamma(p, q) = min_i Gamma_i(T_0i^-1 p, q_i)`` (paper eq. 5-6), with one
+network ``Gamma_i`` shared by all links (they have the same geometry).
+
+Input encodings of a link-frame point ``p`` and the link's (theta, phi):
+  ``paper``          (theta, phi, x, y, z), as in the paper;
+  ``bending-plane``  (theta, x', y', z') with ``p' = Rz(-phi) p``: the link then
+                     always bends towards +x, so the network needs not learn the
+                     rotational symmetry about z, nor the wrap-around of phi.
+
+Weights are saved as flax msgpack bytes next to a JSON file of metadata
+(architecture, encoding, robot spec, training settings, dataset hash,
+validation metrics); ``load_model`` checks both.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import flax.linen as nn
+import flax.serialization
+import jax
+import jax.numpy as jnp
+
+from ncedf.geometry import _world_to_link_points, to_bending_plane
+from ncedf.robot import RobotSpec, arc_lengths_to_config
+
+ENCODINGS = ("paper", "bending-plane")
+OUTPUTS = ("distance", "signed-abs")
+FORMAT_VERSION = 1
+WEIGHTS_DIR = Path(__file__).parent / "weights"
+DEFAULT_MODEL = WEIGHTS_DIR / "ncedf_4x16"
+
+
+class ModelError(ValueError):
+    """A weights file that is missing, corrupted or does not fit."""
+
+
+@dataclasses.dataclass(frozen=True)
+class ModelConfig:
+    """Architecture of the link network.
+
+    Attributes:
+      layers: Dense layers including the output layer (paper Table I).
+      width: units per hidden layer.
+      encoding: "paper" or "bending-plane".
+      output: "distance": the network output is the distance (the paper);
+        "signed-abs": the network learns the signed distance, smooth across
+        the surface, and the model reports its absolute value, so the kink of
+        the unsigned distance at the surface is exact instead of rounded off.
+    """
+
+    layers: int = 4
+    width: int = 16
+    encoding: str = "bending-plane"
+    output: str = "signed-abs"
+
+    def __post_init__(self):
+        if self.layers < 1:
+            raise ValueError(f"layers must be >= 1, got {self.layers}")
+        if self.width < 1:
+            raise ValueError(f"width must be >= 1, got {self.width}")
+        if self.encoding not in ENCODINGS:
+            raise ValueError(f"encoding must be one of {ENCODINGS}, got {self.encoding!r}")
+        if self.output not in OUTPUTS:
+            raise ValueError(f"output must be one of {OUTPUTS}, got {self.output!r}")
+
+    def head(self, raw: jnp.ndarray) -> jnp.ndarray:
+        """The reported distance from the network's raw output."""
+        return jnp.abs(raw) if self.output == "signed-abs" else raw
+
+    @property
+    def input_dim(self) -> int:
+        return 5 if self.encoding == "paper" else 4
+
+
+class MLP(nn.Module):
+    """Softplus MLP with He-uniform kernels; ``layers`` Dense layers, scalar output."""
+
+    layers: int
+    width: int
+
+    @nn.compact
+    def __call__(self, x: jnp.ndarray) -> jnp.ndarray:
+        init = nn.initializers.he_uniform()
+        for _ in range(self.layers - 1):
+            x = nn.softplus(nn.Dense(self.width, kernel_init=init)(x))
+        return nn.Dense(1, kernel_init=init)(x)[..., 0]
+
+
+def encode(points: jnp.ndarray, theta, phi, encoding: str) -> jnp.ndarray:
+    """Network input for link-frame points, (P, 3) -> (P, 4 or 5)."""
+    theta = jnp.broadcast_to(theta, points.shape[:-1])[..., None]
+    if encoding == "paper":
+        phi = jnp.broadcast_to(phi, points.shape[:-1])[..., None]
+        return jnp.concatenate([theta, phi, points], axis=-1)
+    return jnp.concatenate([theta, to_bending_plane(points, phi)], axis=-1)
+
+
+def init_params(key, config: ModelConfig):
+    """Fresh parameters of the link network."""
+    return MLP(config.layers, config.width).init(key, jnp.zeros((1, config.input_dim)))
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class NCEDF:
+    """A trained N-CEDF. A JAX pytree: ``params`` are its leaves.
+
+    Attributes:
+      params: flax parameters of the link network.
+      config: its architecture (static).
+      spec: the link geometry it was trained for (static; n_links is unused).
+      meta: metadata read from the weights file (static).
+    """
+
+    params: dict
+    config: ModelConfig = dataclasses.field(metadata=dict(static=True))
+    spec: RobotSpec = dataclasses.field(metadata=dict(static=True))
+    meta: tuple = dataclasses.field(default=(), metadata=dict(static=True))
+
+    def apply(self, inputs: jnp.ndarray) -> jnp.ndarray:
+        """The link distance from encoded inputs, (..., D) -> (...,) m."""
+        return self.config.head(MLP(self.config.layers, self.config.width).apply(self.params, inputs))
+
+    def link_distance(self, points: jnp.ndarray, theta, phi) -> jnp.ndarray:
+        """Predicted distance from link-frame points to one link.
+
+        Args:
+          points: (P, 3) points in the link's base frame, m.
+          theta, phi: scalars, rad.
+        Returns:
+          (P,) distances, m.
+        """
+        return self.apply(encode(points, theta, phi, self.config.encoding))
+
+    def robot_link_distances(self, points: jnp.ndarray, arc: jnp.ndarray) -> jnp.ndarray:
+        """Predicted distance from world points to every link, (M, P), m.
+
+        Args:
+          points: (P, 3) world points, m.  arc: (M, 3) arc lengths, m.
+        """
+        local = _world_to_link_points(points, arc, self.spec)
+        theta, phi = arc_lengths_to_config(arc, self.spec)
+        return jax.vmap(self.link_distance)(local, theta, phi)
+
+    def robot_distance(self, points: jnp.ndarray, arc: jnp.ndarray) -> jnp.ndarray:
+        """Predicted distance from world points to the robot, (P,), m (eq. 6)."""
+        return jnp.min(self.robot_link_distances(points, arc), axis=0)
+
+    @property
+    def metadata(self) -> dict:
+        return dict(self.meta)
+
+
+def _spec_dict(spec: RobotSpec) -> dict:
+    return {k: v for k, v in dataclasses.asdict(spec).items() if k != "n_links"}
+
+
+def save_model(path, params, config: ModelConfig, spec: RobotSpec, extra: dict) -> tuple[Path, Path]:
+    """Write ``<path>.msgpack`` (weights) and ``<path>.json`` (metadata).
+
+    Args:
+      path: file stem (a suffix, if any, is replaced).
+      extra: JSON-serialisable metadata (training settings, dataset hash, metrics).
+    Returns:
+      The two paths written.
+    """
+    stem = Path(path).with_suffix("")
+    stem.parent.mkdir(parents=True, exist_ok=True)
+    blob = flax.serialization.to_bytes(params)
+    meta = {
+        "format_version": FORMAT_VERSION,
+        "architecture": dataclasses.asdict(config),
+        "robot": _spec_dict(spec),
+        "n_parameters": int(sum(x.size for x in jax.tree_util.tree_leaves(params))),
+        "weights_bytes": len(blob),
+        **extra,
+    }
+    weights, meta_path = stem.with_suffix(".msgpack"), stem.with_suffix(".json")
+    weights.write_bytes(blob)
+    meta_path.write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
+    return weights, meta_path
+
+
+def _freeze(value):
+    if isinstance(value, dict):
+        return tuple((k, _freeze(v)) for k, v in sorted(value.items()))
+    if isinstance(value, list):
+        return tuple(_freeze(v) for v in value)
+    return value
+
+
+def load_model(path=None, expect: ModelConfig | None = None) -> NCEDF:
+    """Load a saved N-CEDF; with no path, the shipped default from ``ncedf/weights``.
+
+    Args:
+      path: ``.msgpack`` or ``.json`` file or their common stem.
+      expect: if given, the architecture the caller needs; a different one is an error.
+    Raises:
+      ModelError: missing, corrupted or mismatched files (message names the file).
+    """
+    stem = Path(DEFAULT_MODEL if path is None else path)
+    if stem.suffix in (".msgpack", ".json"):
+        stem = stem.with_suffix("")
+    weights, meta_path = stem.with_suffix(".msgpack"), stem.with_suffix(".json")
+    for f in (weights, meta_path):
+        if not f.is_file():
+            raise ModelError(f"model file not found: {f}")
+    try:
+        meta = json.loads(meta_path.read_text())
+        config = ModelConfig(**meta["architecture"])
+        spec = RobotSpec(n_links=1, **meta["robot"])
+    except (ValueError, KeyError, TypeError) as exc:
+        raise ModelError(f"corrupted model metadata {meta_path}: {exc}") from None
+    if meta.get("format_version") != FORMAT_VERSION:
+        raise ModelError(f"{meta_path}: unsupported format_version {meta.get('format_version')!r}")
+    if expect is not None and expect != config:
+        raise ModelError(f"{weights} holds a {config} network, expected {expect}")
+    template = init_params(jax.random.PRNGKey(0), config)
+    try:
+        params = flax.serialization.from_bytes(template, weights.read_bytes())
+    except Exception as exc:  # msgpack raises many types on garbage
+        raise ModelError(f"corrupted or mismatched weights {weights}: {type(exc).__name__}: {exc}") from None
+    shapes = jax.tree_util.tree_map(jnp.shape, params)
+    if shapes != jax.tree_util.tree_map(jnp.shape, template):
+        raise ModelError(f"weights {weights} do not fit the architecture {config} in {meta_path}")
+    leaves = jax.tree_util.tree_leaves(params)
+    if not all(bool(jnp.all(jnp.isfinite(x))) for x in leaves):
+        raise ModelError(f"weights {weights} contain NaN or inf")
+    return NCEDF(params=params, config=config, spec=spec, meta=_freeze(meta))
