@@ -20,7 +20,7 @@ Where each event goes (names in `recorder.schema`; MCAP topics = Rerun entity pa
 | event | Rerun (.rrd) | MCAP (.mcap) |
 | --- | --- | --- |
 | `/run` metadata | recording property `run`, one key per metadata key, value = JSON text | metadata record `run`, same {key: JSON text} |
-| `/world/robot/mesh` | Mesh3D: triangle indices static (once), vertex positions per step (every `mesh_every`-th step) | foxglove.SceneUpdate, one triangle list (every `mesh_every`-th step) |
+| `/world/robot/mesh` | Mesh3D: triangle indices static (once), vertex positions every step | foxglove.SceneUpdate, one triangle list (every `mcap_mesh_every`-th step) |
 | `/world/robot/backbone` | LineStrips3D, one strip per link | foxglove.SceneUpdate, one line strip per link |
 | `/world/obstacles/points` | Points3D | foxglove.PointCloud (x, y, z float32) |
 | `/world/obstacles/shapes` | `.../spheres` Ellipsoids3D, `.../boxes` Boxes3D | foxglove.SceneUpdate (spheres, cubes) |

@@ -16,7 +16,7 @@ from recorder.schema import STATE_FIELDS, sim_time_ns
 
 @dataclass(frozen=True)
 class Shapes:
-    """True obstacle geometry: spheres (centres (S,3), radii (S,)) and boxes (centres (B,3), sizes (B,3), axis-aligned)."""
+    """True obstacle geometry: spheres (centres (S, 3), radii (S,)), axis-aligned boxes (centres, sizes (B, 3))."""
 
     sphere_centers: np.ndarray
     sphere_radii: np.ndarray

@@ -79,7 +79,8 @@ def _read_mcap(path: Path) -> _Raw:
                         raw.metrics.append(json.loads(record.data))
                     elif topic == schema.STATE:
                         msg = json.loads(record.data)
-                        raw.state.append({"step": msg["step"], "sim_time": msg["sim_time"], **schema.flatten_state(msg)})
+                        head = {"step": msg["step"], "sim_time": msg["sim_time"]}
+                        raw.state.append({**head, **schema.flatten_state(msg)})
                     elif topic == schema.OUTCOME:
                         raw.outcome = json.loads(record.data)
                 elif isinstance(record, Channel):

@@ -19,11 +19,13 @@ from recorder.errors import RecorderError, RecordingInterrupted
 from recorder.events import make_step
 
 FORMATS = ("rrd", "mcap")
+#: Default MCAP mesh interval, chosen with bench/recorder.py to keep both sinks within 3 ms per step.
+MCAP_MESH_EVERY = 1
 _SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 
 def output_paths(out: str | Path, formats=FORMATS) -> dict[str, Path]:
-    """`out` (with or without a .rrd/.mcap suffix) -> {format: path}, e.g. recording -> recording.rrd, recording.mcap."""
+    """`out` (a .rrd/.mcap suffix is dropped) -> {format: path}: recording -> recording.rrd, recording.mcap."""
     out = Path(out)
     if out.suffix in (".rrd", ".mcap"):
         out = out.with_suffix("")
@@ -63,7 +65,8 @@ class Recorder:
             other than run_id are reserved.
         formats: subset of ("rrd", "mcap").
         overwrite: replace existing files; otherwise an existing output raises `RecorderError`.
-        mesh_every: log the robot mesh on steps where `step % mesh_every == 0` (both formats).
+        mcap_mesh_every: write the robot mesh to the MCAP on steps where `step % mcap_mesh_every == 0`
+            (the mesh is most of the MCAP cost; Rerun logs it every step).
         flush_every: flush both files every this many steps; a SIGKILL loses at most these.
         safety_margin: metres; drawn as a line beside the distances in Rerun.
         app_id: Rerun application id.
@@ -82,13 +85,13 @@ class Recorder:
         formats=FORMATS,
         *,
         overwrite: bool = False,
-        mesh_every: int = 1,
+        mcap_mesh_every: int = MCAP_MESH_EVERY,
         flush_every: int = 50,
         safety_margin: float | None = None,
         app_id: str = "ncedf",
     ):
-        if mesh_every < 1 or flush_every < 1:
-            raise ValueError("mesh_every and flush_every must be >= 1")
+        if mcap_mesh_every < 1 or flush_every < 1:
+            raise ValueError("mcap_mesh_every and flush_every must be >= 1")
         reserved = set(run_meta) & (set(schema.RUN_TABLE_COLUMNS) - {"run_id"})
         if reserved:
             raise ValueError(f"run_meta keys {sorted(reserved)} are reserved for the run table")
@@ -99,19 +102,19 @@ class Recorder:
         check_writable(self.paths, overwrite)
 
         self.run_meta = meta
-        self._mesh_every, self._flush_every = mesh_every, flush_every
+        self._flush_every = flush_every
         self._triangles: np.ndarray | None = None
         self._steps = 0
         self._last = (0, 0)  # (step, sim_time_ns) of the last step, for text and the outcome
         self._min_true = math.inf
         self._signal: int | None = None
         self._previous_handlers: dict[int, Any] = {}
-        self._sinks = self._open_sinks(overwrite, app_id, safety_margin)
+        self._sinks = self._open_sinks(overwrite, app_id, safety_margin, mcap_mesh_every)
         for sink in self._sinks:
             sink.log_run(meta)
         self._install_handlers()
 
-    def _open_sinks(self, overwrite: bool, app_id: str, safety_margin: float | None) -> list:
+    def _open_sinks(self, overwrite: bool, app_id: str, safety_margin: float | None, mcap_mesh_every: int) -> list:
         from recorder.mcap_sink import McapSink
         from recorder.rerun_sink import RerunSink
 
@@ -122,7 +125,7 @@ class Recorder:
                     sinks.append(RerunSink(path, app_id=app_id, recording_id=recording_id(app_id, self.run_meta),
                                            run_name=str(self.run_meta["run_id"]), safety_margin=safety_margin))
                 else:
-                    sinks.append(McapSink(path, overwrite=overwrite))
+                    sinks.append(McapSink(path, overwrite=overwrite, mesh_every=mcap_mesh_every))
         except Exception as exc:
             for sink in sinks:
                 sink.close({"outcome": "interrupted"})
@@ -185,12 +188,10 @@ class Recorder:
         s = make_step(step, sim_time, metrics, mesh_vertices=mesh_vertices, mesh_triangles=mesh_triangles,
                       backbone=backbone, obstacle_points=obstacle_points, obstacle_shapes=obstacle_shapes,
                       goal=goal, plan=plan, state=state)
-        first_mesh = s.mesh_vertices is not None and self._triangles is None
         if s.mesh_vertices is not None:
             self._check_topology(s.mesh_triangles, s.mesh_vertices.shape[0])
-        log_mesh = s.step % self._mesh_every == 0
         for sink in self._sinks:
-            sink.log_step(s, log_mesh=log_mesh, first_mesh=first_mesh)
+            sink.log_step(s)
         self._steps += 1
         self._last = (s.step, s.sim_time_ns)
         true_min = s.metrics.get("true_min_distance", math.nan)

@@ -38,7 +38,7 @@ def tube_triangles(links: int, rings: int, ring_points: int) -> np.ndarray:
 
 
 def tube_vertices(backbone: np.ndarray, ring_points: int, radius: float = TUBE_RADIUS) -> np.ndarray:
-    """Vertices (M * K * ring_points, 3) of tubes around polylines (M, K, 3) (rings in planes normal to x-y-z frame z)."""
+    """Vertices (M * K * ring_points, 3) of tubes around polylines (M, K, 3); rings lie in x-y planes."""
     angles = np.linspace(0.0, 2 * np.pi, ring_points, endpoint=False)
     ring = radius * np.stack([np.cos(angles), np.sin(angles), np.zeros_like(angles)], axis=-1)
     return (backbone[:, :, None, :] + ring[None, None, :, :]).reshape(-1, 3)
@@ -75,7 +75,8 @@ class SyntheticRun:
             "obstacle_points": rng.normal([0.15, 0.0, 0.2], 0.03, size=(self.n_points, 3)),
             "obstacle_shapes": {"spheres": {"centers": np.array([[0.15, 0.0, 0.2], [-0.1, 0.1, 0.3]]),
                                             "radii": np.array([0.03, 0.05])},
-                                "boxes": {"centers": np.array([[0.0, -0.2, 0.1]]), "sizes": np.array([[0.1, 0.1, 0.2]])}},
+                                "boxes": {"centers": np.array([[0.0, -0.2, 0.1]]),
+                                          "sizes": np.array([[0.1, 0.1, 0.2]])}},
             "goal": goal,
             "plan": np.linspace(ee, goal, self.horizon),
             "state": {"arc_lengths": LINK_LENGTH + 0.01 * rng.standard_normal((m, 3)), "theta": theta, "phi": phi,
@@ -88,7 +89,7 @@ class SyntheticRun:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from recorder.recorder import Recorder
+    from recorder.recorder import MCAP_MESH_EVERY, Recorder
 
     parser = argparse.ArgumentParser(prog="python -m recorder.synthetic", description=__doc__.split("\n\n")[0])
     parser.add_argument("out", help="output path without suffix")
@@ -96,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--links", type=int, default=4)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--dt", type=float, default=0.05, help="sim time per step [s]")
-    parser.add_argument("--mesh-every", type=int, default=1)
+    parser.add_argument("--mcap-mesh-every", type=int, default=MCAP_MESH_EVERY)
     parser.add_argument("--flush-every", type=int, default=50)
     parser.add_argument("--step-delay", type=float, default=0.0, help="wall seconds to wait after each step")
     parser.add_argument("--print-steps", action="store_true", help="print 'step K' after each recorded step")
@@ -105,7 +106,7 @@ def main(argv: list[str] | None = None) -> int:
 
     run = SyntheticRun(links=args.links, seed=args.seed)
     try:
-        with Recorder(args.out, run.meta, overwrite=args.overwrite, mesh_every=args.mesh_every,
+        with Recorder(args.out, run.meta, overwrite=args.overwrite, mcap_mesh_every=args.mcap_mesh_every,
                       flush_every=args.flush_every, safety_margin=0.02) as rec:
             for k in range(args.steps):
                 rec.log_step(k, k * args.dt, **run.step(k))
