@@ -20,10 +20,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from recorder import schema
+from recorder import mcap_scan, schema
 from recorder.errors import RecorderError
 
-_MCAP_MAGIC = b"\x89MCAP0\r\n"
 _RRD_MAGIC = b"RRF2"
 _RRD_FOOTER_TAIL = b"RRF2FOOT"
 
@@ -63,40 +62,26 @@ class _Raw:
 
 
 # ---------------------------------------------------------------- MCAP
-def _read_mcap(path: Path) -> _Raw:
-    """Stream the records (works on unclosed files too); parse only the JSON topics and metadata."""
-    from mcap.records import Channel, Footer, Message, Metadata
-    from mcap.stream_reader import StreamReader
-
-    raw = _Raw()
-    wanted: dict[int, str] = {}
-    with open(path, "rb") as f:
-        try:
-            for record in StreamReader(f).records:
-                if isinstance(record, Message):
-                    topic = wanted.get(record.channel_id)
-                    if topic == schema.METRICS:
-                        raw.metrics.append(json.loads(record.data))
-                    elif topic == schema.STATE:
-                        msg = json.loads(record.data)
-                        head = {"step": msg["step"], "sim_time": msg["sim_time"]}
-                        raw.state.append({**head, **schema.flatten_state(msg)})
-                    elif topic == schema.OUTCOME:
-                        raw.outcome = json.loads(record.data)
-                elif isinstance(record, Channel):
-                    if record.topic in schema.LIGHT_TOPICS:
-                        wanted[record.id] = record.topic
-                elif isinstance(record, Metadata) and record.name == "run":
-                    raw.meta = schema.decode_meta(record.metadata)
-                elif isinstance(record, Footer):
-                    raw.complete = True
-        except Exception as exc:  # a truncated tail raises McapError, EOFError or the decompressor's errors
-            if not raw.metrics and not raw.meta:
-                raise RecorderError(f"{path} is not a readable MCAP recording: {exc}") from None
+def _read_mcap(path: Path, with_state: bool) -> _Raw:
+    """Metadata and the JSON topics (works on unclosed files: reads up to the last whole chunk)."""
+    topics = (schema.METRICS, schema.OUTCOME, schema.STATE) if with_state else (schema.METRICS, schema.OUTCOME)
+    try:
+        found = mcap_scan.scan(path, topics)
+    except mcap_scan.NotMcap:
+        raise RecorderError(f"{path} is not an MCAP recording") from None
+    except Exception as exc:  # corrupt content: struct, decoding or decompression errors
+        raise RecorderError(f"{path} is not a readable MCAP recording: {exc}") from None
+    raw = _Raw(meta=schema.decode_meta(found.metadata.get("run", {})), complete=found.footer)
+    raw.metrics = [json.loads(data) for _, data in found.messages[schema.METRICS]]
     for row in raw.metrics:
         for key, value in row.items():
             if value is None:
                 row[key] = np.nan
+    for _, data in found.messages.get(schema.STATE, []):
+        msg = json.loads(data)
+        raw.state.append({"step": msg["step"], "sim_time": msg["sim_time"], **schema.flatten_state(msg)})
+    if found.messages[schema.OUTCOME]:
+        raw.outcome = json.loads(found.messages[schema.OUTCOME][-1][1])
     return raw
 
 
@@ -106,7 +91,7 @@ def _property(batch) -> dict[str, Any]:
                                if name != "rerun.controls.RowId"})
 
 
-def _read_rrd(path: Path) -> _Raw:
+def _read_rrd(path: Path, with_state: bool) -> _Raw:
     """Read the `/metrics/*`, `/state/*` scalars and the `run`/`outcome` properties."""
     import pyarrow as pa
     import rerun.chunk as rc
@@ -122,8 +107,8 @@ def _read_rrd(path: Path) -> _Raw:
         with warnings.catch_warnings():  # rerun warns about a missing footer; `complete` reports it
             warnings.simplefilter("ignore")
             reader = rc.RrdReader(path)
-        chunks = reader.stream().filter(
-            content=[f"{schema.METRICS}/**", f"{schema.STATE}/**", "/__properties/**"]).to_chunks()
+        contents = [f"{schema.METRICS}/**", "/__properties/**"] + ([f"{schema.STATE}/**"] if with_state else [])
+        chunks = reader.stream().filter(content=contents).to_chunks()
     except Exception as exc:
         raise RecorderError(f"{path} is not a readable Rerun recording: {exc}") from None
 
@@ -178,14 +163,14 @@ def _typed(df: pd.DataFrame) -> pd.DataFrame:
     return df.sort_values("step", kind="stable").reset_index(drop=True)
 
 
-def _read_raw(path: Path) -> tuple[str, _Raw]:
+def _read_raw(path: Path, with_state: bool = True) -> tuple[str, _Raw]:
     path = Path(path)
     if not path.is_file():
         raise RecorderError(f"{path} does not exist or is not a file")
     if path.suffix == ".mcap":
-        fmt, raw = "mcap", _read_mcap(path)
+        fmt, raw = "mcap", _read_mcap(path, with_state)
     elif path.suffix == ".rrd":
-        fmt, raw = "rrd", _read_rrd(path)
+        fmt, raw = "rrd", _read_rrd(path, with_state)
     else:
         raise RecorderError(f"{path}: expected a .rrd or .mcap recording")
     if raw.outcome is not None:
@@ -228,7 +213,7 @@ def load_runs(folder: str | Path) -> tuple[pd.DataFrame, pd.DataFrame]:
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", IncompleteRecordingWarning)
-                fmt, raw = _read_raw(path)
+                fmt, raw = _read_raw(path, with_state=False)
         except RecorderError as exc:
             warnings.warn(f"skipped: {exc}", stacklevel=2)
             continue
