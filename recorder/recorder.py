@@ -17,6 +17,8 @@ import numpy as np
 from recorder import schema
 from recorder.errors import RecorderError, RecordingInterrupted
 from recorder.events import make_step
+from recorder.mcap_sink import McapSink
+from recorder.rerun_sink import RerunSink
 
 FORMATS = ("rrd", "mcap")
 #: Default MCAP mesh interval, chosen with bench/recorder.py to keep both sinks within 3 ms per step.
@@ -115,9 +117,6 @@ class Recorder:
         self._install_handlers()
 
     def _open_sinks(self, overwrite: bool, app_id: str, safety_margin: float | None, mcap_mesh_every: int) -> list:
-        from recorder.mcap_sink import McapSink
-        from recorder.rerun_sink import RerunSink
-
         sinks = []
         try:
             for fmt, path in self.paths.items():
@@ -128,7 +127,7 @@ class Recorder:
                     sinks.append(McapSink(path, overwrite=overwrite, mesh_every=mcap_mesh_every))
         except Exception as exc:
             for sink in sinks:
-                sink.close({"outcome": "interrupted"})
+                sink.close(schema.normalise_outcome({"outcome": "interrupted"}))
             raise RecorderError(f"cannot open {path}: {exc}") from exc
         return sinks
 
@@ -145,6 +144,8 @@ class Recorder:
         self._previous_handlers.clear()
 
     def _on_signal(self, signum: int, frame) -> None:
+        if self.closed:  # closing already: let it finish
+            return
         if self._signal is not None:
             raise RecordingInterrupted(f"signal {signal.Signals(signum).name} (second)")
         self._signal = signum

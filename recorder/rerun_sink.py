@@ -54,9 +54,11 @@ def _obstacle_style(archetype):
     return archetype.from_fields(colors=[(230, 80, 50, 128)], fill_mode=fill)
 
 
-def _strips(polylines) -> np.ndarray | list[np.ndarray]:
-    """Polylines as LineStrips3D strips: an (M, K, 3) array as is, a ragged list as a list."""
-    return polylines if isinstance(polylines, np.ndarray) else list(polylines)
+def _concat(parts: list):
+    """Rows of several steps as one batch: one array if they stack, else a list of rows (ragged strips)."""
+    if all(isinstance(p, np.ndarray) for p in parts) and len({p.shape[1:] for p in parts}) == 1:
+        return np.concatenate(parts)
+    return [row for part in parts for row in part]
 
 
 @dataclass
@@ -111,7 +113,7 @@ class RerunSink:
         for entity, c in self._pending.items():
             indexes = [rr.TimeColumn(schema.STEP_TIMELINE, sequence=c.steps),
                        rr.TimeColumn(schema.SIM_TIME_TIMELINE, duration=np.array(c.times, dtype="timedelta64[ns]"))]
-            data = {name: np.concatenate(parts) for name, parts in c.values.items()}
+            data = {name: _concat(parts) for name, parts in c.values.items()}
             self._rec.send_columns(entity, indexes=indexes, columns=c.archetype.columns(**data).partition(c.lengths))
         self._pending.clear()
 
@@ -123,7 +125,7 @@ class RerunSink:
             self._queue(s, schema.MESH, rr.Mesh3D, topology, vertex_positions=s.mesh_vertices)
         if s.backbone is not None:
             self._queue(s, schema.BACKBONE, rr.LineStrips3D, lambda: rr.LineStrips3D.from_fields(radii=0.002),
-                        strips=_strips(s.backbone))
+                        strips=s.backbone)
         if s.obstacle_points is not None:
             self._queue(s, schema.OBSTACLE_POINTS, rr.Points3D, lambda: rr.Points3D.from_fields(radii=0.004),
                         positions=s.obstacle_points)

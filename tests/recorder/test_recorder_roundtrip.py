@@ -247,3 +247,22 @@ def test_load_runs_tables(recorded, tmp_path):
     r0 = steps[steps.run_id == "r0"].drop(columns="run_id").dropna(axis=1, how="all").reset_index(drop=True)
     pd.testing.assert_frame_equal(r0, expected_metrics(sent))
     assert steps.loc[steps.run_id == "s2", "goal_distance"].tolist() == [2.0]
+
+
+def test_ragged_backbones_and_empty_obstacles(tmp_path):
+    lines = [np.zeros((3, 3)), np.arange(15.0).reshape(5, 3)]
+    with Recorder(tmp_path / "e", {}) as rec:
+        rec.log_text("before any step")
+        rec.log_step(0, 0.0, metrics={"goal_distance": 1.0}, backbone=lines, obstacle_points=np.zeros((0, 3)),
+                     obstacle_shapes={"spheres": {"centers": np.zeros((0, 3)), "radii": np.zeros(0)}})
+        rec.log_step(1, 0.1, metrics={"goal_distance": 0.5}, backbone=lines[:1],
+                     obstacle_shapes={"boxes": {"centers": np.zeros((2, 3)), "sizes": np.ones((2, 3))}})
+        rec.finish({"outcome": "success"})
+    a, b = load_run(tmp_path / "e.rrd"), load_run(tmp_path / "e.mcap")
+    pd.testing.assert_frame_equal(a.metrics, b.metrics)
+    assert subprocess.run([RERUN, "rrd", "verify", str(tmp_path / "e.rrd")], capture_output=True).returncode == 0
+    strips = _rrd_columns(tmp_path / "e.rrd")[(schema.BACKBONE, "LineStrips3D:strips")]
+    assert [[len(s) for s in row] for row in strips] == [[3, 5], [3]]
+    np.testing.assert_array_equal(strips[0][1], lines[1])
+    mcap_lines = [m.entities[0].lines for _, m in _mcap_messages(tmp_path / "e.mcap")[schema.BACKBONE]]
+    assert [[len(l.points) for l in row] for row in mcap_lines] == [[3, 5], [3]]
