@@ -173,7 +173,8 @@ class Recorder:
         """Record one step. Arrays may be numpy or JAX; units metres, radians, seconds.
 
         Args:
-            step: step index (timeline `step`); sim_time: seconds (timeline `sim_time`, stored to 1 ns).
+            step: step index (timeline `step`), increasing from call to call (one table row per step).
+            sim_time: seconds (timeline `sim_time`, stored to 1 ns).
             metrics: {name: float}: goal_distance, predicted_min_distance, true_min_distance, solver_ms
                 and any extra keys (NaN or None allowed). Training runs and benchmarks pass only metrics.
             mesh_vertices: (V, 3) robot surface; mesh_triangles: (F, 3) vertex indices, required with the
@@ -189,6 +190,8 @@ class Recorder:
         s = make_step(step, sim_time, metrics, mesh_vertices=mesh_vertices, mesh_triangles=mesh_triangles,
                       backbone=backbone, obstacle_points=obstacle_points, obstacle_shapes=obstacle_shapes,
                       goal=goal, plan=plan, state=state)
+        if self._steps and s.step <= self._last[0]:
+            raise ValueError(f"steps must increase: step {s.step} after step {self._last[0]}")
         if s.mesh_vertices is not None:
             self._check_topology(s.mesh_triangles, s.mesh_vertices.shape[0])
         for sink in self._sinks:

@@ -127,6 +127,8 @@ def test_bad_arguments_raise_clear_errors(tmp_path):
         rec.log_step(0, 0.0, **step)
         with pytest.raises(ValueError, match="mesh topology changed"):
             rec.log_step(1, 0.1, **{**step, "mesh_triangles": step["mesh_triangles"][:-1]})
+        with pytest.raises(ValueError, match="steps must increase"):
+            rec.log_step(0, 0.1, metrics={})
         with pytest.raises(ValueError, match="state arc_lengths"):
             rec.log_step(1, 0.1, metrics={}, state={**step["state"], "arc_lengths": np.zeros((3, 3))})
         with pytest.raises(ValueError, match="outcome must be one of"):
