@@ -162,18 +162,21 @@ def test_mcap_display_topics_hold_what_was_sent(recorded):
         assert msgs[schema.LOG][k][1].message == f"hello {k}"
 
 
-def test_pose_goal_becomes_a_transform(tmp_path):
+@pytest.mark.parametrize("angle", [0.3, 3.0])  # trace of R > 0 and < 0: both branches of the conversion
+def test_pose_goal_becomes_a_transform(tmp_path, angle):
     """A (4, 4) goal: Rerun Transform3D with its rotation, MCAP FrameTransform with the same quaternion."""
-    angle = 0.3
+    axis = np.array([1.0, 2.0, 2.0]) / 3.0
+    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
     pose = np.eye(4)
-    pose[:3, :3] = [[np.cos(angle), -np.sin(angle), 0], [np.sin(angle), np.cos(angle), 0], [0, 0, 1]]
+    pose[:3, :3] = np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k  # Rodrigues
     pose[:3, 3] = [0.1, 0.2, 0.3]
     with Recorder(tmp_path / "g", {}) as rec:
         rec.log_step(0, 0.0, metrics={}, goal=pose)
         rec.finish({"outcome": "success"})
     goal = _mcap_messages(tmp_path / "g.mcap")[schema.GOAL][0][1]
-    q = goal.rotation
-    np.testing.assert_allclose([q.x, q.y, q.z, q.w], [0, 0, np.sin(angle / 2), np.cos(angle / 2)], atol=1e-12)
+    q = np.array([goal.rotation.x, goal.rotation.y, goal.rotation.z, goal.rotation.w])
+    expected = np.array([*(np.sin(angle / 2) * axis), np.cos(angle / 2)])
+    np.testing.assert_allclose(q * np.sign(q @ expected), expected, atol=1e-12)
     cols = _rrd_columns(tmp_path / "g.rrd")
     np.testing.assert_allclose(np.asarray(cols[(schema.GOAL, "Transform3D:mat3x3")][0]).reshape(3, 3).T,
                                pose[:3, :3], atol=1e-7)
