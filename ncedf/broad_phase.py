@@ -45,17 +45,18 @@ import jax.numpy as jnp
 from ncedf.robot import RobotSpec, _even_series, bending_vector, forward_kinematics
 
 
-def link_capsules(arc: jnp.ndarray, spec: RobotSpec, segments: int):
+def link_capsules(arc: jnp.ndarray, spec: RobotSpec, segments: int, frames=None):
     """Bounding capsules of every link of one configuration.
 
     Args:
       arc: (M, 3) arc lengths, m.  segments: sub-arcs per link, S >= 1.
+      frames: (M + 1, 4, 4) forward kinematics of ``arc`` if already computed.
     Returns:
       a, b: (M, S, 3) world end points of each sub-arc's chord, m;
       radius: (M,) capsule radius (sub-arc sagitta + r), m.
     """
     ab = bending_vector(arc, spec)  # (M, 2)
-    frames = forward_kinematics(arc, spec)[:-1]  # (M, 4, 4)
+    frames = (forward_kinematics(arc, spec) if frames is None else frames)[:-1]  # (M, 4, 4)
     u = jnp.linspace(0.0, 1.0, segments + 1)  # (S + 1,)
     t_ab = ab[:, None, :] * u[None, :, None]  # (M, S + 1, 2) bending vector of the partial arc
     sinc, versc, _ = _even_series(jnp.sum(t_ab * t_ab, axis=-1))
@@ -71,11 +72,18 @@ def link_capsules(arc: jnp.ndarray, spec: RobotSpec, segments: int):
 
 
 def segment_distance(p: jnp.ndarray, a: jnp.ndarray, b: jnp.ndarray) -> jnp.ndarray:
-    """Distance from points ``p`` to segments ``[a, b]`` (broadcasting, last axis 3)."""
-    ab = b - a
-    ap = p - a
-    t = jnp.clip(jnp.sum(ap * ab, axis=-1) / jnp.maximum(jnp.sum(ab * ab, axis=-1), 1e-12), 0.0, 1.0)
-    return jnp.sqrt(jnp.sum((ap - t[..., None] * ab) ** 2, axis=-1))
+    """Distance from points ``p`` to segments ``[a, b]`` (broadcasting, last axis 3).
+
+    Computed per component (structure of arrays) so XLA fuses it on CPU.
+    """
+    px, py, pz = p[..., 0], p[..., 1], p[..., 2]
+    ax, ay, az = a[..., 0], a[..., 1], a[..., 2]
+    ux, uy, uz = b[..., 0] - ax, b[..., 1] - ay, b[..., 2] - az
+    vx, vy, vz = px - ax, py - ay, pz - az
+    uu = jnp.maximum(ux * ux + uy * uy + uz * uz, 1e-12)
+    t = jnp.clip((vx * ux + vy * uy + vz * uz) / uu, 0.0, 1.0)
+    dx, dy, dz = vx - t * ux, vy - t * uy, vz - t * uz
+    return jnp.sqrt(dx * dx + dy * dy + dz * dz)
 
 
 def stage_one(a: jnp.ndarray, b: jnp.ndarray, points: jnp.ndarray, mask: jnp.ndarray, k1: int) -> jnp.ndarray:
@@ -86,7 +94,7 @@ def stage_one(a: jnp.ndarray, b: jnp.ndarray, points: jnp.ndarray, mask: jnp.nda
       points: (P, 3); mask: (P,) bool.  k1: candidates per link (<= P).
     Returns:
       (M, k1) int indices into ``points``: the k1 points nearest to the mean
-      capsule segments of each link.
+      (over rollouts) capsule segments of each link.
     """
     ma, mb = jnp.mean(a, axis=0), jnp.mean(b, axis=0)  # (M, S, 3)
     d = segment_distance(points[None, None, :, :], ma[:, :, None, :], mb[:, :, None, :])  # (M, S, P)
@@ -112,13 +120,14 @@ def stage_two(a, b, radius, cand_points, cand_mask, k2: int):
     return flat // k1, flat % k1
 
 
-def rollout_min_distances_broad(shape, arcs, points, mask, k1: int, k2: int, segments: int):
+def rollout_min_distances_broad(shape, arcs, points, mask, k1: int, k2: int, segments: int, frames=None):
     """Per-state minimum distance by the broad phase.
 
     Args:
       shape: a representation from ``ncedf.shapes``.
       arcs: (N, H, M, 3) rollout states.  points: (P, 3); mask: (P,) bool.
       k1, k2, segments: see the module docstring (clamped to the point count).
+      frames: (N, H, M + 1, 4, 4) forward kinematics of ``arcs`` if already computed.
     Returns:
       (N, H) minimum distance of each state, m (+inf if every point is masked).
     """
@@ -127,25 +136,27 @@ def rollout_min_distances_broad(shape, arcs, points, mask, k1: int, k2: int, seg
     n_links = arcs.shape[-2]
     k1 = max(1, min(k1, n_points))
     k2 = max(1, min(k2, n_links * k1))
-    a, b, radius = jax.vmap(jax.vmap(lambda x: link_capsules(x, spec, segments)))(arcs)
+    if frames is None:
+        frames = forward_kinematics(arcs, spec)
+    a, b, radius = jax.vmap(jax.vmap(lambda x, f: link_capsules(x, spec, segments, f)))(arcs, frames)
 
     def per_step(args):
-        arcs_k, a_k, b_k, r_k = args  # (N, M, 3), (N, M, S, 3), ..., (N, M)
+        arcs_k, frames_k, a_k, b_k, r_k = args  # (N, M, 3), (N, M + 1, 4, 4), (N, M, S, 3), ..., (N, M)
         idx = stage_one(a_k, b_k, points, mask, k1)  # (M, K1)
         cand = points[idx]
         cand_mask = mask[idx]
 
-        def per_state(arc, aa, bb, rr):
+        def per_state(arc, ff, aa, bb, rr):
             link, slot = stage_two(aa, bb, rr, cand, cand_mask, k2)
             pidx = idx[link, slot]
-            geom = shape.prepare(arc)
+            geom = shape.prepare(arc, ff)
             d = shape.pair_distances(geom, points[pidx], link)
             return jnp.min(jnp.where(mask[pidx], d, jnp.inf))
 
-        return jax.vmap(per_state)(arcs_k, a_k, b_k, r_k)
+        return jax.vmap(per_state)(arcs_k, frames_k, a_k, b_k, r_k)
 
     swap = lambda x: jnp.swapaxes(x, 0, 1)  # noqa: E731
-    out = jax.lax.map(per_step, (swap(arcs), swap(a), swap(b), swap(radius)))  # (H, N)
+    out = jax.lax.map(per_step, (swap(arcs), swap(frames), swap(a), swap(b), swap(radius)))  # (H, N)
     return out.T
 
 

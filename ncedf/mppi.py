@@ -84,7 +84,7 @@ class MPPIConfig:
     dt: float = 0.05
     max_points: int = 512
     broad_phase: bool = True
-    k1: int = 64
+    k1: int = 128
     k2: int = 16
     capsule_segments: int = 2
     shift_fill: str = "last"
@@ -212,11 +212,11 @@ class MPPI:
         c = self.config
         return MPPIState(jnp.zeros((c.horizon, self.spec.n_links, 3), jnp.float32), jnp.asarray(key))
 
-    def rollout_min_distances(self, shape, arcs, points, mask):
+    def rollout_min_distances(self, shape, arcs, points, mask, frames=None):
         """(N, H) min distance per rollout state, by the broad phase or brute force."""
         c = self.config
         if c.broad_phase:
-            return rollout_min_distances_broad(shape, arcs, points, mask, c.k1, c.k2, c.capsule_segments)
+            return rollout_min_distances_broad(shape, arcs, points, mask, c.k1, c.k2, c.capsule_segments, frames)
         return rollout_min_distances_brute(shape, arcs, points, mask)
 
     def _goal_distance(self, frames_ee, goal):
@@ -236,9 +236,9 @@ class MPPI:
         arcs = arc[None, None] + c.dt * jnp.cumsum(u, axis=1)  # x^1 .. x^H
 
         # Per-state terms.
-        ee = forward_kinematics(arcs, spec)[..., -1, :, :]
-        goal_d = self._goal_distance(ee, goal)  # (N, H)
-        dist = self.rollout_min_distances(shape, arcs, points, mask)  # (N, H)
+        frames = forward_kinematics(arcs, spec)  # (N, H, M + 1, 4, 4)
+        goal_d = self._goal_distance(frames[..., -1, :, :], goal)  # (N, H)
+        dist = self.rollout_min_distances(shape, arcs, points, mask, frames)  # (N, H)
         coll = 1.0 / jnp.maximum(dist - c.safety_margin, c.epsilon)
         viol = jnp.sum(jnp.maximum(spec.l_min - arcs, 0.0) + jnp.maximum(arcs - spec.l_max, 0.0), axis=(-2, -1))
 

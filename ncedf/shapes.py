@@ -107,9 +107,10 @@ class _Base:
         """Smallest distance from the (unmasked) points to the robot; +inf if none."""
         return _masked_min(self.distances(points, arc), mask)
 
-    def _base_geometry(self, arc: jnp.ndarray) -> LinkGeometry:
+    def _base_geometry(self, arc: jnp.ndarray, frames=None) -> LinkGeometry:
         theta, phi = arc_lengths_to_config(arc, self.spec)
-        return LinkGeometry(forward_kinematics(arc, self.spec), theta, phi)
+        frames = forward_kinematics(arc, self.spec) if frames is None else frames
+        return LinkGeometry(frames, theta, phi)
 
 
 @jax.tree_util.register_dataclass
@@ -120,8 +121,9 @@ class ExactShape(_Base):
     spec: RobotSpec = dataclasses.field(metadata=dict(static=True))
     name: str = dataclasses.field(default="exact", metadata=dict(static=True))
 
-    def prepare(self, arc):
-        return self._base_geometry(arc)
+    def prepare(self, arc, frames=None):
+        """Per-configuration geometry; ``frames`` = forward kinematics if already known."""
+        return self._base_geometry(arc, frames)
 
     def pair_distances(self, geom: LinkGeometry, points, link):
         local = _to_local(geom.frames, link, points)
@@ -149,8 +151,9 @@ class NCEDFShape(_Base):
     spec: RobotSpec = dataclasses.field(metadata=dict(static=True))
     name: str = dataclasses.field(default="ncedf", metadata=dict(static=True))
 
-    def prepare(self, arc):
-        return self._base_geometry(arc)
+    def prepare(self, arc, frames=None):
+        """Per-configuration geometry; ``frames`` = forward kinematics if already known."""
+        return self._base_geometry(arc, frames)
 
     def pair_distances(self, geom: LinkGeometry, points, link):
         local = _to_local(geom.frames, link, points)
@@ -214,8 +217,9 @@ class SphereShape(_Base):
         coords = jnp.stack([u, jnp.zeros_like(u), jnp.zeros_like(u)], axis=-1)
         return to_bending_plane(surface_points_bending_plane(coords, theta, self.spec), -phi)
 
-    def prepare(self, arc):
-        base = self._base_geometry(arc)
+    def prepare(self, arc, frames=None):
+        """Per-configuration geometry; ``frames`` = forward kinematics if already known."""
+        base = self._base_geometry(arc, frames)
         local = jax.vmap(self.centres_local)(base.theta, base.phi)
         frames = base.frames[:-1]
         centres = jnp.einsum("mij,mnj->mni", frames[:, :3, :3], local) + frames[:, None, :3, 3]
@@ -247,16 +251,17 @@ class PointCloudShape(_Base):
     spec: RobotSpec = dataclasses.field(metadata=dict(static=True))
     name: str = dataclasses.field(default="pointcloud", metadata=dict(static=True))
 
-    def surface_points(self, arc):
+    def surface_points(self, arc, frames=None):
         """The robot's surface samples in the world, (M, n, 3)."""
-        base = self._base_geometry(arc)
+        base = self._base_geometry(arc, frames)
         local = jax.vmap(link_surface_points, in_axes=(0, 0, 0, None))(self.coords, base.theta, base.phi, self.spec)
         frames = base.frames[:-1]
         return jnp.einsum("mij,mnj->mni", frames[:, :3, :3], local) + frames[:, None, :3, 3]
 
-    def prepare(self, arc):
-        base = self._base_geometry(arc)
-        return base._replace(centres=self.surface_points(arc))
+    def prepare(self, arc, frames=None):
+        """Per-configuration geometry; ``frames`` = forward kinematics if already known."""
+        base = self._base_geometry(arc, frames)
+        return base._replace(centres=self.surface_points(arc, base.frames))
 
     def pair_distances(self, geom: LinkGeometry, points, link):
         s = geom.centres[link]  # (K, n, 3)
