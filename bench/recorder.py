@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from concurrent.futures import ProcessPoolExecutor
 import tempfile
 import time
 from pathlib import Path
@@ -67,18 +68,32 @@ def bench_logging(args, folder: Path) -> None:
             print(f"{mesh_every:>15} {label:>5} {wall:>13.2f} {cpu:>12.2f} {cpu / BUDGET_MS:>13.2f} {sizes:>24}")
 
 
-def bench_load_runs(args, folder: Path) -> None:
-    """N runs of `--load-steps` steps (state, metrics, backbone, cloud, plan; no mesh) per format."""
-    run = SyntheticRun(links=args.links, seed=0)
+def write_runs(folder: Path, fmt: str, first: int, count: int, links: int, n_steps: int) -> None:
+    """Runs first .. first + count - 1 (state, metrics, backbone, cloud, plan; no mesh)."""
+    run = SyntheticRun(links=links, seed=0)
     steps = [{k: v for k, v in run.step(k).items() if k not in ("mesh_vertices", "mesh_triangles")}
-             for k in range(args.load_steps)]
+             for k in range(n_steps)]
+    for i in range(first, first + count):
+        with Recorder(folder / fmt / f"run{i:05d}", {**run.meta, "seed": i}, formats=(fmt,)) as rec:
+            for k, kwargs in enumerate(steps):
+                rec.log_step(k, 0.05 * k, **kwargs)
+            rec.finish({"outcome": "success", "steps": n_steps})
+
+
+def bench_load_runs(args, folder: Path) -> None:
+    """N runs of `--load-steps` steps per format, then `load_runs` over each folder.
+
+    The runs are written by short-lived worker processes (250 runs each): rerun-sdk keeps every
+    recording's threads alive until its process ends (rerun-io/rerun#2116).
+    """
     start = time.perf_counter()
-    for fmt in ("rrd", "mcap"):
-        for i in range(args.load_runs):
-            with Recorder(folder / fmt / f"run{i:05d}", {**run.meta, "seed": i}, formats=(fmt,)) as rec:
-                for k, kwargs in enumerate(steps):
-                    rec.log_step(k, 0.05 * k, **kwargs)
-                rec.finish({"outcome": "success", "steps": len(steps)})
+    batch = 250
+    with ProcessPoolExecutor(max_workers=1, max_tasks_per_child=1) as pool:
+        jobs = [pool.submit(write_runs, folder, fmt, first, min(batch, args.load_runs - first), args.links,
+                            args.load_steps)
+                for fmt in ("rrd", "mcap") for first in range(0, args.load_runs, batch)]
+        for job in jobs:
+            job.result()
     print(f"wrote 2 x {args.load_runs} runs of {args.load_steps} steps in {time.perf_counter() - start:.0f} s")
     for fmt in ("mcap", "rrd"):
         start = time.perf_counter()
