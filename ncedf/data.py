@@ -221,7 +221,8 @@ def load_dataset(config: DatasetConfig | ValidationConfig, spec: RobotSpec, use_
         except (OSError, ValueError, KeyError):
             path.unlink(missing_ok=True)
     build = _build_training if isinstance(config, DatasetConfig) else _build_validation
-    arrays = [np.asarray(a, dtype=bool if a.dtype == bool else np.float32) for a in build(config, spec)]
+    arrays = jax.jit(build, static_argnums=(0, 1))(config, spec)
+    arrays = [np.asarray(a, dtype=bool if a.dtype == bool else np.float32) for a in arrays]
     data = LinkDataset(*arrays, key=key)
     if use_cache:
         path.parent.mkdir(parents=True, exist_ok=True)

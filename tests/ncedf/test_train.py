@@ -1,0 +1,109 @@
+"""Training: loss terms in closed form, clipping before the update, a short run learns."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+import pytest
+
+from ncedf.data import DatasetConfig, ValidationConfig, load_dataset
+from ncedf.model import ModelConfig
+from ncedf.robot import RobotSpec
+from ncedf.train import TrainConfig, loss_terms, make_optimizer, main, train, training_arrays
+
+SPEC = RobotSpec(1)
+
+
+@pytest.fixture(autouse=True)
+def _cache(tmp_path, monkeypatch):
+    monkeypatch.setenv("NCEDF_CACHE", str(tmp_path))
+
+
+def _linear_params(w, b):
+    """A one-layer (linear) network: out = w . x + b."""
+    return {"params": {"Dense_0": {"kernel": jnp.asarray(w, jnp.float32)[:, None], "bias": jnp.array([b], jnp.float32)}}}
+
+
+def test_loss_terms_match_closed_forms_on_a_linear_network():
+    cfg = ModelConfig(layers=1, width=1, encoding="bending-plane", output="distance")
+    # Gradient w.r.t. the point (last three inputs) is (0, 0.6, 0.8) scaled by 2: norm 2.
+    params = _linear_params([5.0, 0.0, 1.2, 1.6], 0.1)
+    x = jnp.array([[0.1, 1.0, 1.0, 1.0], [0.2, 0.0, 0.0, 0.0]])
+    y = jnp.array([3.0, 0.5])
+    pred = np.array([0.5 + 1.2 + 1.6 + 0.1, 1.0 + 0.1])
+    terms = loss_terms(params, cfg, x, y)
+    np.testing.assert_allclose(terms["distance"], np.mean((pred - y) ** 2), rtol=1e-5)
+    np.testing.assert_allclose(terms["eikonal"], (2.0 - 1.0) ** 2, rtol=1e-5)
+    np.testing.assert_allclose(terms["over"], np.mean(np.maximum(pred - y, 0) ** 2), rtol=1e-5)
+
+
+def test_signed_abs_over_estimation_compares_the_absolute_output_with_the_distance():
+    cfg = ModelConfig(layers=1, width=1, output="signed-abs")
+    params = _linear_params([0.0, 0.0, 0.0, 0.0], -0.3)  # raw output -0.3 everywhere
+    x = jnp.zeros((2, 4))
+    y = jnp.array([-0.1, 0.5])  # inside at depth 0.1; outside at 0.5
+    terms = loss_terms(params, cfg, x, y)
+    np.testing.assert_allclose(terms["distance"], np.mean([(-0.3 + 0.1) ** 2, (-0.3 - 0.5) ** 2]), rtol=1e-5)
+    np.testing.assert_allclose(terms["over"], np.mean([(0.3 - 0.1) ** 2, 0.0]), rtol=1e-5)
+
+
+def test_near_weight_reweights_near_samples():
+    cfg = ModelConfig(layers=1, width=1, output="distance")
+    params = _linear_params([0.0, 0.0, 0.0, 0.0], 0.0)
+    x = jnp.zeros((2, 4))
+    y = jnp.array([0.1, 1.0])  # one near-field, one far sample; squared errors 0.01 and 1
+    terms = loss_terms(params, cfg, x, y, near_weight=3.0)
+    np.testing.assert_allclose(terms["distance"], (3.0 * 0.01 + 1.0) / 2.0 / (4.0 / 2.0), rtol=1e-5)
+
+
+def test_gradient_is_clipped_before_the_adam_update():
+    """Adam is scale-invariant on its first step only; clipping makes two histories equal."""
+    cfg = TrainConfig(epochs=1, schedule="constant", weight_decay=0.0, clip_norm=1.0)
+    params = {"w": jnp.zeros(3)}
+    g = jnp.array([3.0, -4.0, 12.0])
+
+    def second_update(scale):
+        opt = make_optimizer(cfg, 10)
+        state = opt.init(params)
+        _, state = opt.update({"w": scale * g}, state, params)
+        update, _ = opt.update({"w": 0.05 * g}, state, params)
+        return update["w"]
+
+    # |g| = 13: both first gradients (norms 1.3 and 13) are clipped to norm 1.
+    np.testing.assert_allclose(second_update(0.1), second_update(1.0), rtol=1e-6)
+    unclipped = optax.adam(cfg.learning_rate)
+    s1, s2 = unclipped.init(params), unclipped.init(params)
+    _, s1 = unclipped.update({"w": 0.1 * g}, s1)
+    _, s2 = unclipped.update({"w": 1.0 * g}, s2)
+    u1, _ = unclipped.update({"w": 0.05 * g}, s1)
+    u2, _ = unclipped.update({"w": 0.05 * g}, s2)
+    assert not np.allclose(u1["w"], u2["w"], rtol=1e-3)
+
+
+def test_signed_targets_are_negative_inside():
+    data = load_dataset(DatasetConfig(n_configs=3, grid=12, n_surface=8), SPEC)
+    _, y = training_arrays(data, ModelConfig(output="signed-abs"))
+    k = data.points.shape[1]
+    np.testing.assert_allclose(y[: 3 * k], np.where(data.inside, -data.distances, data.distances).ravel())
+    np.testing.assert_array_equal(y[3 * k:], 0.0)
+    assert data.inside.any()
+
+
+def test_short_training_run_reduces_validation_error():
+    data = load_dataset(DatasetConfig(n_configs=20, grid=10, n_surface=100), SPEC)
+    val = load_dataset(ValidationConfig(n_configs=10, n_points=256, n_surface=16), SPEC)
+    cfg = TrainConfig(epochs=4, batch_size=128)
+    model, history = train(ModelConfig(layers=3, width=16), cfg, data, val, SPEC, progress=False)
+    assert len(history) == 4
+    # Far better than the best constant prediction (the median label).
+    constant_mae = np.mean(np.abs(val.distances - np.median(val.distances)))
+    assert history[-1]["mae"] < 0.3 * constant_mae
+    assert all(np.isfinite(row["distance"]) for row in history)
+    assert model.link_distance(jnp.zeros((2, 3)), 0.1, 0.2).shape == (2,)
+
+
+def test_cli_rejects_bad_values_with_one_line(capsys, tmp_path):
+    assert main(["--epochs", "0", "--out", str(tmp_path / "m")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == "error: epochs must be >= 1, got 0"
+    assert not (tmp_path / "m.msgpack").exists()
