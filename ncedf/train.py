@@ -274,6 +274,7 @@ def main(argv=None) -> int:
     final = history[-1]
     metrics = {k: v for k, v in final.items() if k not in ("epoch", "seconds", "samples_per_second")}
     extra = {
+        "command": "python -m ncedf.train " + " ".join(sys.argv[1:] if argv is None else argv),
         "training": dataclasses.asdict(cfg),
         "dataset": {**dataclasses.asdict(data_cfg), "hash": data.key, "samples": data.n_samples},
         "validation": {**dataclasses.asdict(val_cfg), "hash": val.key},
