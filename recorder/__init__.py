@@ -37,13 +37,21 @@ MCAP: log_time = sim_time in ns. Scalars are float64 in both formats; `sim_time`
 
 Reproducibility: the Rerun recording id is derived from app id + metadata and nothing wall-clock
 is logged, yet rerun-sdk 0.41 stamps every chunk and row with a time-based id, so two .rrd files of
-the same run are equal by `rerun rrd compare` but not byte for byte. The .mcap is byte-identical.
+the same run are equal by `rerun rrd compare --unordered` but not byte for byte. The .mcap is
+byte-identical.
 
 Faults: the files are written in place and flushed every `flush_every` steps. SIGINT/SIGTERM let the
 current step finish, then write the outcome "interrupted" and close both files; after a SIGKILL
 `load_run` reads what was flushed and warns `IncompleteRecordingWarning`. An existing output is
 refused unless `overwrite=True`; an unwritable folder fails before anything is opened
 (`RecorderError`, one line naming the path).
+
+Cost (bench/recorder.py, 7 links, 6720-vertex mesh every step): about 0.9 ms per step for the
+.rrd, 2 ms for the .mcap (zstd level 1), 2.7 ms for both; 7 and 8 MB per 100 steps.
+
+Many runs in one process: rerun-sdk keeps each recording's threads and about 1 MB alive until the
+process ends (rerun-io/rerun#2116), so record thousands of runs from worker processes that are
+replaced now and then (e.g. `ProcessPoolExecutor(max_tasks_per_child=...)`).
 
 CLI: `python -m recorder.inspect FILE...`; `python -m recorder.synthetic OUT` writes a synthetic run.
 """

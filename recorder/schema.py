@@ -28,9 +28,6 @@ LOG = "/log"
 #: Rerun only: the safety margin, logged per step so it draws as a line beside the distances.
 SAFETY_MARGIN = "/reference/safety_margin"
 
-#: Topics `recorder.read` needs; everything else is for display only.
-LIGHT_TOPICS = (STATE, METRICS, OUTCOME)
-
 #: Rerun timelines (MCAP messages carry both inside their JSON body).
 STEP_TIMELINE = "step"
 SIM_TIME_TIMELINE = "sim_time"
@@ -101,10 +98,6 @@ OUTCOME_SCHEMA = {
 def sim_time_ns(sim_time: float) -> int:
     """Seconds -> integer nanoseconds, the resolution both formats store `sim_time` at."""
     return int(round(float(sim_time) * 1e9))
-
-
-def ns_to_seconds(ns: int) -> float:
-    return ns / 1e9
 
 
 def json_float(x: float) -> float | None:
