@@ -13,6 +13,7 @@ import pytest
 
 from recorder import IncompleteRecordingWarning, Recorder, RecorderError, load_run
 from recorder.synthetic import SyntheticRun
+from recorder.synthetic import main as synthetic_main
 
 RERUN = str(Path(sys.executable).with_name("rerun"))
 FLUSH_EVERY, KILL_AFTER_STEP = 10, 25
@@ -47,9 +48,10 @@ def verify_rrd(path: Path) -> int:
     return subprocess.run([RERUN, "rrd", "verify", str(path)], capture_output=True).returncode
 
 
-def test_sigterm_finishes_the_step_and_closes_both_files(tmp_path):
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_signal_finishes_the_step_and_closes_both_files(tmp_path, sig):
     out = tmp_path / "term"
-    assert run_until(out, signal.SIGTERM) == 130
+    assert run_until(out, sig) == 130
     assert verify_rrd(out.with_suffix(".rrd")) == 0
     runs = [load_run(out.with_suffix(s)) for s in (".rrd", ".mcap")]
     for r in runs:
@@ -96,6 +98,15 @@ def test_signal_handlers_only_while_open(tmp_path):
     assert signal.getsignal(signal.SIGTERM) not in before
     rec.finish({"outcome": "stuck"})
     assert (signal.getsignal(signal.SIGTERM), signal.getsignal(signal.SIGINT)) == before
+
+
+def test_cli_refuses_an_existing_output_without_overwrite(tmp_path, capsys):
+    out = str(tmp_path / "run")
+    assert synthetic_main([out, "--steps", "1"]) == 0
+    assert synthetic_main([out, "--steps", "1"]) == 2
+    assert capsys.readouterr().err.strip() == f"error: {out}.rrd exists; pass overwrite=True (--overwrite) to replace it"
+    assert synthetic_main([out, "--steps", "2", "--overwrite"]) == 0
+    assert len(load_run(out + ".mcap").metrics) == 2
 
 
 def test_existing_output_is_not_overwritten(tmp_path):

@@ -112,6 +112,9 @@ def test_rrd_display_entities_hold_what_was_sent(recorded):
     assert cols[(schema.LOG, "TextLog:level")] == [["WARN"]] * STEPS
     assert cols[(schema.SAFETY_MARGIN, "Scalars:scalars")] == [[0.02]] * STEPS
     assert cols[(schema.METRICS + "/goal_distance", "step")] == list(range(STEPS))
+    assert not {name for _, name in cols} & {"log_time", "log_tick"}  # no wall clock
+    reader = rc.RrdReader(out.with_suffix(".rrd"))
+    assert [b.application_id for b in reader.blueprints()] == ["ncedf"]  # the stored default blueprint
 
 
 def _mcap_messages(path: Path) -> dict[str, list]:
