@@ -104,7 +104,8 @@ def test_cli_refuses_an_existing_output_without_overwrite(tmp_path, capsys):
     out = str(tmp_path / "run")
     assert synthetic_main([out, "--steps", "1"]) == 0
     assert synthetic_main([out, "--steps", "1"]) == 2
-    assert capsys.readouterr().err.strip() == f"error: {out}.rrd exists; pass overwrite=True (--overwrite) to replace it"
+    expected = f"error: {out}.rrd exists; pass overwrite=True (--overwrite) to replace it"
+    assert capsys.readouterr().err.strip() == expected
     assert synthetic_main([out, "--steps", "2", "--overwrite"]) == 0
     assert len(load_run(out + ".mcap").metrics) == 2
 
