@@ -31,6 +31,16 @@ from ncedf.robot import (
 SPEC1 = RobotSpec(1)
 SPEC4 = RobotSpec(4)
 
+# Jitted entry points (spec static), shared by all tests: each compiles once per
+# shape and dtype (float32 by default, float64 under jax.enable_x64) and is then
+# reused, instead of eager mode compiling and dispatching every jax op separately.
+eq1 = jax.jit(arc_lengths_to_config, static_argnums=1)
+eq1_inverse = jax.jit(config_to_arc_lengths, static_argnums=2)
+link_tf = jax.jit(link_transform, static_argnums=2)
+fk = jax.jit(forward_kinematics, static_argnums=1)
+ee_pose = jax.jit(end_effector_pose, static_argnums=1)
+sample = jax.jit(sample_arc_lengths, static_argnums=(1, 2))
+
 
 # ----------------------------------------------------------------------------
 # independent references (numpy)
@@ -184,7 +194,7 @@ def test_straight_state():
 
 
 def test_validate_state_accepts_valid_states():
-    arc = np.asarray(sample_arc_lengths(jax.random.key(0), SPEC4, (4,)), dtype=np.float64)
+    arc = np.asarray(sample(jax.random.key(0), SPEC4, (4,)), dtype=np.float64)
     out = validate_state(arc, SPEC4)
     assert out.dtype == np.float64 and out.shape == (4, 3)
     np.testing.assert_allclose(out, arc)
@@ -222,7 +232,7 @@ def test_validate_state_names_the_bad_link_sum():
 
 
 def test_sample_arc_lengths_are_valid_and_cover_range():
-    arc = np.asarray(sample_arc_lengths(jax.random.key(1), SPEC1, (5000,)), dtype=np.float64)
+    arc = np.asarray(sample(jax.random.key(1), SPEC1, (5000,)), dtype=np.float64)
     assert arc.shape == (5000, 3)
     assert arc.min() >= SPEC1.l_min - 1e-6 and arc.max() <= SPEC1.l_max + 1e-6
     np.testing.assert_allclose(arc.sum(-1), 6.0, atol=3e-6)
@@ -234,9 +244,9 @@ def test_sample_arc_lengths_are_valid_and_cover_range():
     # l1 uniform in the limits (paper Sec. IV-B): mean and quartiles
     assert np.mean(arc[:, 0]) == pytest.approx(2.0, abs=0.02)
     np.testing.assert_allclose(np.quantile(arc[:, 0], [0.25, 0.75]), [1.8, 2.2], atol=0.025)
-    # batched shapes
-    assert sample_arc_lengths(jax.random.key(2), SPEC1, (2, 3)).shape == (2, 3, 3)
-    assert sample_arc_lengths(jax.random.key(2), SPEC1).shape == (3,)
+    # batched shapes (traced only: the shape needs no compilation)
+    assert jax.eval_shape(lambda k: sample_arc_lengths(k, SPEC1, (2, 3)), jax.random.key(2)).shape == (2, 3, 3)
+    assert jax.eval_shape(lambda k: sample_arc_lengths(k, SPEC1), jax.random.key(2)).shape == (3,)
 
 
 # ----------------------------------------------------------------------------
@@ -245,8 +255,8 @@ def test_sample_arc_lengths_are_valid_and_cover_range():
 
 def test_eq1_against_numpy_formula():
     with jax.enable_x64(True):
-        arc = np.asarray(sample_arc_lengths(jax.random.key(3), SPEC1, (2000,)))
-        theta, phi = arc_lengths_to_config(jnp.asarray(arc), SPEC1)
+        arc = np.asarray(sample(jax.random.key(3), SPEC1, (5000,)))  # the shape test_round_trip_* compiles too
+        theta, phi = eq1(jnp.asarray(arc), SPEC1)
         theta, phi = np.asarray(theta), np.asarray(phi)
     t_ref, p_ref = eq1_numpy(arc, SPEC1.radius)
     np.testing.assert_allclose(theta, t_ref, atol=1e-9)
@@ -258,8 +268,8 @@ def test_eq1_against_numpy_formula():
 
 def test_eq1_float32_default_and_other_radius():
     spec = RobotSpec(1, length=1.0, radius=0.05, l_min=0.9, l_max=1.1)
-    arc = np.asarray(sample_arc_lengths(jax.random.key(4), spec, (500,)), dtype=np.float64)
-    theta, phi = arc_lengths_to_config(jnp.asarray(arc, jnp.float32), spec)
+    arc = np.asarray(sample(jax.random.key(4), spec, (500,)), dtype=np.float64)
+    theta, phi = eq1(jnp.asarray(arc, jnp.float32), spec)
     t_ref, p_ref = eq1_numpy(arc, spec.radius)
     np.testing.assert_allclose(np.asarray(theta), t_ref, atol=5e-5)
     ok = t_ref > 1e-2
@@ -280,7 +290,7 @@ def test_eq1_hand_cases():
         ([L, L, L], 0.0, None),
     ]
     for arc, t_ref, p_ref in cases:
-        theta, phi = arc_lengths_to_config(jnp.asarray(arc), SPEC1)
+        theta, phi = eq1(jnp.asarray(arc), SPEC1)
         assert float(theta) == pytest.approx(t_ref, abs=1e-5)
         # float32: the representable -pi is -np.float32(np.pi)
         assert -np.float32(np.pi) <= phi < np.float32(np.pi)
@@ -295,7 +305,7 @@ def test_config_to_arc_lengths_formula_and_sum():
         th = np.linspace(0, 2.0, 7)
         ph = np.linspace(-np.pi, np.pi, 9, endpoint=False)
         T, P = np.meshgrid(th, ph, indexing="ij")
-        arc = np.asarray(config_to_arc_lengths(jnp.asarray(T), jnp.asarray(P), SPEC1))
+        arc = np.asarray(eq1_inverse(jnp.asarray(T), jnp.asarray(P), SPEC1))
     assert arc.shape == (7, 9, 3)
     np.testing.assert_allclose(arc.sum(-1), 3 * SPEC1.length, atol=1e-12)
     # inverse of eq. (1): chamber j's length is L minus r theta times the
@@ -307,13 +317,13 @@ def test_config_to_arc_lengths_formula_and_sum():
 
 def test_round_trip_arc_config_arc_sampled():
     with jax.enable_x64(True):
-        arc = sample_arc_lengths(jax.random.key(5), SPEC1, (5000,))
-        theta, phi = arc_lengths_to_config(arc, SPEC1)
-        back = config_to_arc_lengths(theta, phi, SPEC1)
+        arc = sample(jax.random.key(5), SPEC1, (5000,))
+        theta, phi = eq1(arc, SPEC1)
+        back = eq1_inverse(theta, phi, SPEC1)
         np.testing.assert_allclose(np.asarray(back), np.asarray(arc), atol=1e-6)
     # float32 (the default dtype) still meets 1e-6 relative to the arc lengths' scale
-    arc32 = sample_arc_lengths(jax.random.key(5), SPEC1, (5000,))
-    back32 = config_to_arc_lengths(*arc_lengths_to_config(arc32, SPEC1), SPEC1)
+    arc32 = sample(jax.random.key(5), SPEC1, (5000,))
+    back32 = eq1_inverse(*eq1(arc32, SPEC1), SPEC1)
     np.testing.assert_allclose(np.asarray(back32), np.asarray(arc32), atol=2e-6)
 
 
@@ -322,9 +332,9 @@ def test_round_trip_config_arc_config_grid():
         th = np.linspace(0.0, SPEC1.max_bend(), 61)
         ph = np.linspace(-np.pi, np.pi, 73, endpoint=False)
         T, P = np.meshgrid(th, ph, indexing="ij")
-        arc = config_to_arc_lengths(jnp.asarray(T), jnp.asarray(P), SPEC1)
-        theta, phi = (np.asarray(x) for x in arc_lengths_to_config(arc, SPEC1))
-        back = np.asarray(config_to_arc_lengths(jnp.asarray(theta), jnp.asarray(phi), SPEC1))
+        arc = eq1_inverse(jnp.asarray(T), jnp.asarray(P), SPEC1)
+        theta, phi = (np.asarray(x) for x in eq1(arc, SPEC1))
+        back = np.asarray(eq1_inverse(jnp.asarray(theta), jnp.asarray(phi), SPEC1))
     np.testing.assert_allclose(back, np.asarray(arc), atol=1e-6)
     np.testing.assert_allclose(theta, T, atol=1e-9)
     ok = T > 0
@@ -342,10 +352,10 @@ def test_round_trip_whole_valid_range_boundary():
         c = np.stack([np.cos(phi + 2 * np.pi * j / 3) for j in range(3)], -1)
         lim = 0.4 / (0.2 * np.maximum(np.abs(c), 1e-300))  # symmetric limits: |r theta c| <= 0.4
         theta_edge = lim.min(-1)  # largest valid theta for each phi
-        arc = np.asarray(config_to_arc_lengths(jnp.asarray(theta_edge), jnp.asarray(phi), SPEC1))
+        arc = np.asarray(eq1_inverse(jnp.asarray(theta_edge), jnp.asarray(phi), SPEC1))
         assert arc.min() >= 1.6 - 1e-12 and arc.max() <= 2.4 + 1e-12
-        t, p = arc_lengths_to_config(jnp.asarray(arc), SPEC1)
-        back = np.asarray(config_to_arc_lengths(t, p, SPEC1))
+        t, p = eq1(jnp.asarray(arc), SPEC1)
+        back = np.asarray(eq1_inverse(t, p, SPEC1))
     np.testing.assert_allclose(back, arc, atol=1e-6)
     assert theta_edge.max() == pytest.approx(SPEC1.max_bend(), rel=1e-4)
 
@@ -364,7 +374,7 @@ def _configs():
 @pytest.mark.parametrize("theta, phi", _configs())
 def test_link_transform_matches_elementary_rotations(theta, phi):
     with jax.enable_x64(True):
-        T = np.asarray(link_transform(jnp.asarray(theta), jnp.asarray(phi), SPEC1))
+        T = np.asarray(link_tf(jnp.asarray(theta), jnp.asarray(phi), SPEC1))
     ref = link_transform_numpy(theta, phi, SPEC1.length)
     np.testing.assert_allclose(T, ref, atol=1e-10)
     # proper rigid transform
@@ -377,7 +387,7 @@ def test_link_transform_matches_elementary_rotations(theta, phi):
 @pytest.mark.parametrize("theta, phi", [(0.0, 0.0), (0.3, 0.7), (1.2, -2.0), (2.3, 3.0), (3.0, -0.5)])
 def test_link_transform_matches_integrated_backbone(theta, phi):
     with jax.enable_x64(True):
-        T = np.asarray(link_transform(jnp.asarray(theta), jnp.asarray(phi), SPEC1))
+        T = np.asarray(link_tf(jnp.asarray(theta), jnp.asarray(phi), SPEC1))
     p, R = integrate_backbone(theta, phi, SPEC1.length)
     np.testing.assert_allclose(T[:3, 3], p, atol=1e-9)
     np.testing.assert_allclose(T[:3, 2], R[:, 2], atol=1e-9)  # end tangent
@@ -391,7 +401,7 @@ def test_link_transform_float32_and_batched():
     rng = np.random.default_rng(7)
     th = rng.uniform(0, 2.3, (4, 5))
     ph = rng.uniform(-np.pi, np.pi, (4, 5))
-    T = np.asarray(link_transform(jnp.asarray(th, jnp.float32), jnp.asarray(ph, jnp.float32), SPEC1))
+    T = np.asarray(link_tf(jnp.asarray(th, jnp.float32), jnp.asarray(ph, jnp.float32), SPEC1))
     assert T.shape == (4, 5, 4, 4) and T.dtype == np.float32
     for i in range(4):
         for j in range(5):
@@ -401,7 +411,7 @@ def test_link_transform_float32_and_batched():
 @pytest.mark.parametrize("theta", [1e-7, 1e-5, 1e-4, 1e-3, 9.9999e-3, 1e-2, 1.00001e-2, 2e-2, 0.1])
 def test_link_transform_small_theta_float32_continuity(theta):
     """No float32 blow-up near theta = 0 (series / closed-form switch included)."""
-    T = np.asarray(link_transform(jnp.float32(theta), jnp.float32(0.7), SPEC1))
+    T = np.asarray(link_tf(jnp.float32(theta), jnp.float32(0.7), SPEC1))
     ref = link_transform_numpy(theta, 0.7, SPEC1.length)
     np.testing.assert_allclose(T, ref, atol=1e-6)
     straight = link_transform_numpy(0.0, 0.0, SPEC1.length)
@@ -419,13 +429,13 @@ def arc_for(theta, phi, spec):
 
 
 def test_fk_straight_state():
-    frames = np.asarray(forward_kinematics(SPEC4.straight_state(), SPEC4))
+    frames = np.asarray(fk(SPEC4.straight_state(), SPEC4))
     assert frames.shape == (5, 4, 4)
     for i in range(5):
         ref = np.eye(4)
         ref[2, 3] = i * SPEC4.length
         np.testing.assert_allclose(frames[i], ref, atol=1e-6)
-    np.testing.assert_allclose(np.asarray(end_effector_pose(SPEC4.straight_state(), SPEC4))[:3, 3], [0, 0, 8.0], atol=1e-6)
+    np.testing.assert_allclose(np.asarray(ee_pose(SPEC4.straight_state(), SPEC4))[:3, 3], [0, 0, 8.0], atol=1e-6)
 
 
 def test_fk_two_links_bending_in_x_then_y_by_hand():
@@ -441,7 +451,7 @@ def test_fk_two_links_bending_in_x_then_y_by_hand():
     np.testing.assert_allclose(t_chk, [t1, t2], atol=1e-12)
     np.testing.assert_allclose(p_chk, [0.0, np.pi / 2], atol=1e-12)
     with jax.enable_x64(True):
-        frames = np.asarray(forward_kinematics(jnp.asarray(arc), spec))
+        frames = np.asarray(fk(jnp.asarray(arc), spec))
     rho1, rho2 = L / t1, L / t2
     c1, s1, c2, s2 = np.cos(t1), np.sin(t1), np.cos(t2), np.sin(t2)
     p1 = np.array([rho1 * (1 - c1), 0.0, rho1 * s1])
@@ -460,8 +470,8 @@ def test_fk_two_links_bending_in_x_then_y_by_hand():
 def test_fk_is_product_of_link_transforms():
     spec = RobotSpec(5)
     with jax.enable_x64(True):
-        arc = np.asarray(sample_arc_lengths(jax.random.key(8), spec, (5,)))
-        frames = np.asarray(forward_kinematics(jnp.asarray(arc), spec))
+        arc = np.asarray(sample(jax.random.key(8), spec, (5,)))
+        frames = np.asarray(fk(jnp.asarray(arc), spec))
     theta, phi = eq1_numpy(arc, spec.radius)
     acc = np.eye(4)
     np.testing.assert_allclose(frames[0], acc, atol=1e-12)
@@ -474,15 +484,15 @@ def test_fk_is_product_of_link_transforms():
         assert np.linalg.det(R) == pytest.approx(1.0, abs=1e-10)
     # end-effector pose is the last frame
     with jax.enable_x64(True):
-        np.testing.assert_allclose(np.asarray(end_effector_pose(jnp.asarray(arc), spec)), frames[-1], atol=1e-12)
+        np.testing.assert_allclose(np.asarray(ee_pose(jnp.asarray(arc), spec)), frames[-1], atol=1e-12)
 
 
 def test_fk_matches_integrated_chain():
     """The whole robot backbone integrated as one curve with piecewise-constant curvature."""
     spec = RobotSpec(3)
     with jax.enable_x64(True):
-        arc = np.asarray(sample_arc_lengths(jax.random.key(9), spec, (3,)))
-        frames = np.asarray(forward_kinematics(jnp.asarray(arc), spec))
+        arc = np.asarray(sample(jax.random.key(9), spec, (3,)))
+        frames = np.asarray(fk(jnp.asarray(arc), spec))
     theta, phi = eq1_numpy(arc, spec.radius)
     R_acc, p_acc = np.eye(3), np.zeros(3)
     for i in range(3):
@@ -497,15 +507,15 @@ def test_fk_matches_integrated_chain():
 
 def test_fk_batched_leading_dims():
     spec = RobotSpec(3)
-    fk = jax.jit(forward_kinematics, static_argnums=1)
-    arc = sample_arc_lengths(jax.random.key(10), spec, (2, 4, 3))  # (2, 4, M=3, 3)
+    arc = sample(jax.random.key(10), spec, (2, 4, 3))  # (2, 4, M=3, 3)
     frames = np.asarray(fk(arc, spec))
     assert frames.shape == (2, 4, 4, 4, 4)
     for i in range(2):
         for j in range(4):
             np.testing.assert_allclose(frames[i, j], np.asarray(fk(arc[i, j], spec)), atol=1e-6)
-    assert end_effector_pose(arc, spec).shape == (2, 4, 4, 4)
-    np.testing.assert_allclose(np.asarray(end_effector_pose(arc, spec)), frames[:, :, -1], atol=1e-6)
+    ee = np.asarray(ee_pose(arc, spec))
+    assert ee.shape == (2, 4, 4, 4)
+    np.testing.assert_allclose(ee, frames[:, :, -1], atol=1e-6)
 
 
 # ----------------------------------------------------------------------------
@@ -525,16 +535,17 @@ def _central_fd(f, x, h=1e-6):
 def test_fk_gradients_at_straight_are_finite_and_match_fd():
     spec = RobotSpec(2)
     with jax.enable_x64(True):
-        fk = jax.jit(lambda a: forward_kinematics(a, spec))
+        fk2 = lambda a: forward_kinematics(a, spec)
         straight = np.asarray(spec.straight_state())
         mixed = straight.copy()  # link 2 straight, link 1 bent
         mixed[0] = arc_for(0.6, 0.3, spec)
         xs = jnp.asarray(np.stack([straight, mixed]))
-        jr = np.asarray(jax.jit(jax.vmap(jax.jacrev(fk)))(xs))
-        jf = np.asarray(jax.jit(jax.vmap(jax.jacfwd(fk)))(xs))
+        # reverse and forward mode in one compiled function
+        jr, jf = jax.jit(jax.vmap(lambda a: (jax.jacrev(fk2)(a), jax.jacfwd(fk2)(a))))(xs)
+        jr, jf = np.asarray(jr), np.asarray(jf)
         assert np.all(np.isfinite(jr)) and np.all(np.isfinite(jf))
         for k in range(2):
-            fd = _central_fd(fk, xs[k])
+            fd = _central_fd(lambda a: fk(a, spec), xs[k])
             np.testing.assert_allclose(jr[k], fd, atol=1e-7)
             np.testing.assert_allclose(jf[k], fd, atol=1e-7)
         # not trivially zero: at straight, x_ee = (L / 2 + (M - 1) L) a_1 to first order in
@@ -562,8 +573,10 @@ def test_link_transform_gradients_at_theta_zero():
     with jax.enable_x64(True):
         phis = jnp.asarray([0.0, 1.0, -np.pi])
         zeros = jnp.zeros(3)
-        g = np.asarray(jax.jit(jax.vmap(jax.jacfwd(lambda t, p: link_transform(t, p, SPEC1))))(zeros, phis))
-        gp = np.asarray(jax.jit(jax.vmap(jax.jacrev(lambda t, p: link_transform(t, p, SPEC1), argnums=1)))(zeros, phis))
+        tf = lambda t, p: link_transform(t, p, SPEC1)
+        # d/dtheta (forward mode) and d/dphi (reverse mode) in one compiled function
+        g, gp = jax.jit(jax.vmap(lambda t, p: (jax.jacfwd(tf)(t, p), jax.jacrev(tf, argnums=1)(t, p))))(zeros, phis)
+        g, gp = np.asarray(g), np.asarray(gp)
     assert np.all(np.isfinite(g)) and np.all(np.isfinite(gp))
     for k, phi in enumerate(np.asarray(phis)):
         # one-sided FD (theta >= 0) of the numpy reference
@@ -576,11 +589,15 @@ def test_link_transform_gradients_at_theta_zero():
 
 def test_config_gradients_at_straight_are_finite():
     arc = SPEC4.straight_state()
-    for out in (0, 1):
-        f = lambda a: arc_lengths_to_config(a, SPEC4)[out]
-        g = jax.jit(jax.grad(lambda a: jnp.sum(f(a))))(arc)
-        assert np.all(np.isfinite(np.asarray(g)))
-        g = jax.jit(jax.jacfwd(f))(arc)
+
+    def grads(a):  # reverse-mode gradient and forward-mode Jacobian of theta and of phi, one compile
+        out = []
+        for k in (0, 1):
+            f = lambda a: arc_lengths_to_config(a, SPEC4)[k]
+            out += [jax.grad(lambda a: jnp.sum(f(a)))(a), jax.jacfwd(f)(a)]
+        return out
+
+    for g in jax.jit(grads)(arc):
         assert np.all(np.isfinite(np.asarray(g)))
     # theta^2 is smooth in the arc lengths: its gradient matches FD (and is zero at straight)
     with jax.enable_x64(True):
@@ -590,5 +607,5 @@ def test_config_gradients_at_straight_are_finite():
         np.testing.assert_allclose(np.asarray(grad(x)), _central_fd(f, x), atol=1e-6)
         np.testing.assert_allclose(np.asarray(grad(SPEC1.straight_state())), 0.0, atol=1e-12)
     # config_to_arc_lengths gradient at theta = 0
-    g = jax.grad(lambda t, p: jnp.sum(config_to_arc_lengths(t, p, SPEC1) ** 2), argnums=(0, 1))(0.0, 0.3)
+    g = jax.jit(jax.grad(lambda t, p: jnp.sum(config_to_arc_lengths(t, p, SPEC1) ** 2), argnums=(0, 1)))(0.0, 0.3)
     assert all(np.isfinite(float(x)) for x in g)
