@@ -9,6 +9,16 @@ Input encodings of a link-frame point ``p`` and the link's (theta, phi):
                      always bends towards +x, so the network needs not learn the
                      rotational symmetry about z, nor the wrap-around of phi.
 
+Outside the box it was trained in (its *domain*, link frame) a network
+extrapolates. There its output is clamped between bounds of the true
+distance, with ``q`` the nearest point of the box and ``g = |p - q|``:
+the upper bound ``Gamma(q) + g`` (triangle inequality), and the larger of two
+lower bounds, ``sqrt(Gamma(q)^2 + g^2)`` (``p - q`` lies in the box's normal
+cone at ``q`` and the link inside the box) and the distance to the link's
+chord minus its sagitta and radius (the link lies in that capsule). The
+bounds hold up to the network's error at ``q``; the box is at least 0.85 m
+from the link, so beyond it errors cannot hide a collision.
+
 Weights are saved as flax msgpack bytes next to a JSON file of metadata
 (architecture, encoding, robot spec, training settings, dataset hash,
 validation metrics); ``load_model`` checks both.
@@ -25,8 +35,9 @@ import flax.serialization
 import jax
 import jax.numpy as jnp
 
+from ncedf.data import BOX_MAX, BOX_MIN
 from ncedf.geometry import _world_to_link_points, to_bending_plane
-from ncedf.robot import RobotSpec, arc_lengths_to_config
+from ncedf.robot import RobotSpec, _even_series, arc_lengths_to_config, link_transform
 
 ENCODINGS = ("paper", "bending-plane")
 OUTPUTS = ("distance", "signed-abs")
@@ -100,6 +111,20 @@ def encode(points: jnp.ndarray, theta, phi, encoding: str) -> jnp.ndarray:
     return jnp.concatenate([theta, to_bending_plane(points, phi)], axis=-1)
 
 
+def capsule_lower_bound(points: jnp.ndarray, theta, phi, spec: RobotSpec) -> jnp.ndarray:
+    """Lower bound of the distance to a link: to its chord, minus sagitta and r, (P,) m.
+
+    Args:
+      points: (P, 3) link-frame points, m.  theta, phi: scalars, rad.
+    """
+    end = link_transform(theta, phi, spec)[:3, 3]
+    t = jnp.clip(points @ end / jnp.maximum(end @ end, 1e-12), 0.0, 1.0)
+    to_chord = jnp.linalg.norm(points - t[:, None] * end, axis=-1)
+    _, versc, _ = _even_series(theta * theta / 4.0)
+    sagitta = spec.length * theta / 4.0 * versc
+    return to_chord - sagitta - spec.radius
+
+
 def init_params(key, config: ModelConfig):
     """Fresh parameters of the link network."""
     return MLP(config.layers, config.width).init(key, jnp.zeros((1, config.input_dim)))
@@ -114,12 +139,14 @@ class NCEDF:
       params: flax parameters of the link network.
       config: its architecture (static).
       spec: the link geometry it was trained for (static; n_links is unused).
+      domain: (box_min, box_max) of the training points, link frame, m (static).
       meta: metadata read from the weights file (static).
     """
 
     params: dict
     config: ModelConfig = dataclasses.field(metadata=dict(static=True))
     spec: RobotSpec = dataclasses.field(metadata=dict(static=True))
+    domain: tuple = dataclasses.field(default=(BOX_MIN, BOX_MAX), metadata=dict(static=True))
     meta: tuple = dataclasses.field(default=(), metadata=dict(static=True))
 
     def apply(self, inputs: jnp.ndarray) -> jnp.ndarray:
@@ -133,9 +160,20 @@ class NCEDF:
           points: (P, 3) points in the link's base frame, m.
           theta, phi: scalars, rad.
         Returns:
-          (P,) distances, m.
+          (P,) distances, m; beyond the domain, the bound from its nearest point.
         """
-        return self.apply(encode(points, theta, phi, self.config.encoding))
+        nearest = jnp.clip(points, jnp.asarray(self.domain[0]), jnp.asarray(self.domain[1]))
+        both = self.apply(encode(jnp.concatenate([points, nearest]), theta, phi, self.config.encoding))
+        raw, at_box = jnp.split(both, 2)
+        gap_sq = jnp.sum((points - nearest) ** 2, axis=-1)
+        outside = gap_sq > 0
+        gap = jnp.sqrt(jnp.where(outside, gap_sq, 1.0))
+        lower = jnp.maximum(
+            jnp.sqrt(at_box * at_box + jnp.where(outside, gap_sq, 1.0)),
+            capsule_lower_bound(points, theta, phi, self.spec),
+        )
+        upper = jnp.maximum(lower, at_box + gap)
+        return jnp.where(outside, jnp.clip(raw, lower, upper), raw)
 
     def robot_link_distances(self, points: jnp.ndarray, arc: jnp.ndarray) -> jnp.ndarray:
         """Predicted distance from world points to every link, (M, P), m.
@@ -160,11 +198,13 @@ def _spec_dict(spec: RobotSpec) -> dict:
     return {k: v for k, v in dataclasses.asdict(spec).items() if k != "n_links"}
 
 
-def save_model(path, params, config: ModelConfig, spec: RobotSpec, extra: dict) -> tuple[Path, Path]:
+def save_model(path, params, config: ModelConfig, spec: RobotSpec, extra: dict,
+               domain=(BOX_MIN, BOX_MAX)) -> tuple[Path, Path]:
     """Write ``<path>.msgpack`` (weights) and ``<path>.json`` (metadata).
 
     Args:
       path: file stem (a suffix, if any, is replaced).
+      domain: (box_min, box_max) of the training points, link frame, m.
       extra: JSON-serialisable metadata (training settings, dataset hash, metrics).
     Returns:
       The two paths written.
@@ -176,6 +216,7 @@ def save_model(path, params, config: ModelConfig, spec: RobotSpec, extra: dict) 
         "format_version": FORMAT_VERSION,
         "architecture": dataclasses.asdict(config),
         "robot": _spec_dict(spec),
+        "domain": {"box_min": list(domain[0]), "box_max": list(domain[1])},
         "n_parameters": int(sum(x.size for x in jax.tree_util.tree_leaves(params))),
         "weights_bytes": len(blob),
         **extra,
@@ -214,6 +255,7 @@ def load_model(path=None, expect: ModelConfig | None = None) -> NCEDF:
         meta = json.loads(meta_path.read_text())
         config = ModelConfig(**meta["architecture"])
         spec = RobotSpec(n_links=1, **meta["robot"])
+        domain = (tuple(meta["domain"]["box_min"]), tuple(meta["domain"]["box_max"]))
     except (ValueError, KeyError, TypeError) as exc:
         raise ModelError(f"corrupted model metadata {meta_path}: {exc}") from None
     if meta.get("format_version") != FORMAT_VERSION:
@@ -231,4 +273,4 @@ def load_model(path=None, expect: ModelConfig | None = None) -> NCEDF:
     leaves = jax.tree_util.tree_leaves(params)
     if not all(bool(jnp.all(jnp.isfinite(x))) for x in leaves):
         raise ModelError(f"weights {weights} contain NaN or inf")
-    return NCEDF(params=params, config=config, spec=spec, meta=_freeze(meta))
+    return NCEDF(params=params, config=config, spec=spec, domain=domain, meta=_freeze(meta))

@@ -23,7 +23,7 @@ import numpy as np
 import optax
 from tqdm import tqdm
 
-from ncedf.data import DatasetConfig, LinkDataset, ValidationConfig, load_dataset
+from ncedf.data import BOX_MAX, BOX_MIN, DatasetConfig, LinkDataset, ValidationConfig, load_dataset
 from ncedf.metrics import NEAR_FIELD, distance_metrics
 from ncedf.model import ENCODINGS, MLP, NCEDF, OUTPUTS, ModelConfig, encode, init_params, save_model
 from ncedf.robot import RobotSpec
@@ -187,8 +187,12 @@ def train(
     val: LinkDataset,
     spec: RobotSpec,
     progress: bool = True,
+    domain: tuple = (BOX_MIN, BOX_MAX),
 ) -> tuple[NCEDF, list[dict]]:
-    """Train a link network; returns the model and per-epoch history."""
+    """Train a link network; returns the model and per-epoch history.
+
+    ``domain`` is the box (link frame, m) the training points cover.
+    """
     x, y = training_arrays(data, model_cfg)
     n = int(y.shape[0])
     if n < cfg.batch_size:
@@ -207,12 +211,12 @@ def train(
         params, opt_state, terms = epoch(params, opt_state, k_epoch, x, y)
         terms = {k: float(v) for k, v in terms.items()}
         seconds = time.perf_counter() - start
-        model = NCEDF(params=params, config=model_cfg, spec=spec)
+        model = NCEDF(params=params, config=model_cfg, spec=spec, domain=domain)
         metrics = evaluate_model(model, val)
         row = {"epoch": i + 1, "seconds": seconds, "samples_per_second": n / seconds, **terms, **metrics}
         history.append(row)
         bar.set_postfix(mae=f"{metrics['mae']:.4f}", moe=f"{metrics['moe']:.4f}", near_mae=f"{metrics['near_mae']:.4f}")
-    return NCEDF(params=params, config=model_cfg, spec=spec), history
+    return NCEDF(params=params, config=model_cfg, spec=spec, domain=domain), history
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -269,7 +273,8 @@ def main(argv=None) -> int:
     data = load_dataset(data_cfg, spec)
     val = load_dataset(val_cfg, spec)
     data_seconds = time.perf_counter() - start
-    model, history = train(model_cfg, cfg, data, val, spec)
+    domain = (data_cfg.box_min, data_cfg.box_max)
+    model, history = train(model_cfg, cfg, data, val, spec, domain=domain)
     train_seconds = time.perf_counter() - start - data_seconds
     final = history[-1]
     metrics = {k: v for k, v in final.items() if k not in ("epoch", "seconds", "samples_per_second")}
@@ -283,7 +288,7 @@ def main(argv=None) -> int:
         "history": [{k: round(v, 6) for k, v in row.items()} for row in history],
         "jax_version": jax.__version__,
     }
-    weights, meta = save_model(args.out, model.params, model_cfg, spec, extra)
+    weights, meta = save_model(args.out, model.params, model_cfg, spec, extra, domain)
     print(f"trained in {train_seconds:.0f} s ({data_seconds:.0f} s data); wrote {weights} and {meta}")
     print("  ".join(f"{k}={metrics[k]:.4f}" for k in ("mae", "rmse", "moe", "over_p999", "near_mae", "near_moe", "surface_mean")))
     return 0
