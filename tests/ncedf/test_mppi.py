@@ -1,0 +1,183 @@
+"""MPPI controller: validation, projection, determinism, compilation, closed loop."""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from ncedf.broad_phase import rollout_min_distances_broad, rollout_min_distances_brute
+from ncedf.geometry import robot_signed_distance
+from ncedf.mppi import MPPI, MPPIConfig, limit_to_state_bounds, project_controls
+from ncedf.robot import InvalidStateError, RobotSpec, end_effector_pose, sample_arc_lengths
+from ncedf.shapes import make_shape
+
+SPEC = RobotSpec(4)
+SMALL = MPPIConfig(samples=64, horizon=10, max_points=64)
+
+
+@pytest.fixture(scope="module")
+def exact_mppi():
+    # Cheap to compile; the exact representation is exercised in the broad-phase test.
+    return MPPI(SPEC, make_shape("spheres:2", SPEC), SMALL)
+
+
+@pytest.mark.parametrize(
+    "field, value",
+    [("samples", 0), ("horizon", -1), ("covariance", float("nan")), ("temperature", 0.0), ("alpha_u", 0.0),
+     ("alpha_u", 1.5), ("w_goal", -1.0), ("control_bound", -0.3), ("dt", float("inf")), ("samples", 2.5),
+     ("noise_clip", 0.0), ("shift_fill", "wrap"), ("broad_phase", 1), ("k1", 0), ("max_points", 0)],
+)
+def test_bad_config_values_are_rejected(field, value):
+    with pytest.raises(ValueError, match=field):
+        MPPIConfig(**{field: value})
+
+
+def test_paper_defaults():
+    c = MPPIConfig()
+    assert (c.samples, c.horizon, c.covariance, c.temperature) == (800, 20, 0.05, 0.02)
+    assert (c.w_goal, c.w_coll, c.w_state, c.safety_margin, c.epsilon) == (12.0, 1.1, 50.0, 0.05, 0.01)
+    assert (c.control_bound, c.dt) == (0.3, 0.05)
+
+
+def test_unknown_representation():
+    with pytest.raises(ValueError, match="unknown representation"):
+        make_shape("voxels", SPEC)
+
+
+def test_bad_inputs_give_clear_errors(exact_mppi):
+    st = exact_mppi.init(jax.random.PRNGKey(0))
+    arc = np.asarray(SPEC.straight_state())
+    goal = np.array([1.0, 0.0, 7.0])
+    bad = arc.copy()
+    bad[1, 2] = np.nan
+    with pytest.raises(InvalidStateError, match="NaN"):
+        exact_mppi.step(st, bad, goal, None)
+    with pytest.raises(InvalidStateError, match="outside the limits"):
+        exact_mppi.step(st, arc + np.array([0.5, -0.25, -0.25]), goal, None)
+    with pytest.raises(ValueError, match="shape"):
+        exact_mppi.step(st, arc[:2], goal, None)
+    pts = np.ones((5, 3))
+    pts[3, 1] = np.nan
+    with pytest.raises(ValueError, match="NaN or inf.*row 3"):
+        exact_mppi.step(st, arc, goal, pts)
+    with pytest.raises(ValueError, match="max_points"):
+        exact_mppi.step(st, arc, goal, np.ones((65, 3)))
+    with pytest.raises(ValueError, match="goal"):
+        exact_mppi.step(st, arc, np.array([1.0, np.nan, 0.0]), None)
+    with pytest.raises(ValueError, match="goal"):
+        exact_mppi.step(st, arc, np.zeros(2), None)
+    with pytest.raises(ValueError, match="links"):
+        MPPI(RobotSpec(3), make_shape("exact", SPEC), SMALL)
+
+
+def test_projection_keeps_zero_sum_and_bound():
+    u = 3.0 * jax.random.normal(jax.random.PRNGKey(1), (500, 4, 3))
+    p = project_controls(u, 0.3)
+    np.testing.assert_allclose(p.sum(-1), 0.0, atol=1e-5)  # float32 rounding of inputs ~10
+    assert float(jnp.abs(p).max()) <= 0.3 + 1e-7
+    small = 0.01 * u
+    np.testing.assert_allclose(project_controls(small, 0.3), small - small.mean(-1, keepdims=True), atol=1e-7)
+
+
+def test_action_keeps_the_state_within_limits():
+    arc = jnp.array([[1.601, 2.2, 2.199]] * 4)
+    u = jnp.array([[-0.3, 0.3, 0.0]] * 4)
+    v = limit_to_state_bounds(arc, u, 0.05, SPEC)
+    nxt = arc + 0.05 * v
+    assert float(nxt.min()) >= SPEC.l_min - 1e-6
+    np.testing.assert_allclose(v.sum(-1), 0.0, atol=1e-7)
+
+
+def test_deterministic_and_no_recompilation(exact_mppi):
+    m = MPPI(SPEC, make_shape("spheres:2", SPEC), SMALL)  # a fresh compile cache
+    arc0 = np.asarray(SPEC.straight_state())
+    goal = np.array([1.0, 0.5, 7.0])
+    a1, s1, i1 = m.step(m.init(jax.random.PRNGKey(3)), arc0, goal, np.ones((10, 3)) * 3)
+    a2, s2, i2 = m.step(m.init(jax.random.PRNGKey(3)), arc0, goal, np.ones((10, 3)) * 3)
+    np.testing.assert_array_equal(a1, a2)
+    np.testing.assert_array_equal(s1.nominal, s2.nominal)
+    a3, _, _ = m.step(m.init(jax.random.PRNGKey(4)), arc0, goal, np.ones((10, 3)) * 3)
+    assert not np.array_equal(a1, a3)
+    # New states, goals and clouds of other sizes (incl. empty) reuse the program.
+    rng = np.random.default_rng(0)
+    st = s1
+    for n in (0, 1, 17, 64):
+        arc = np.asarray(sample_arc_lengths(jax.random.PRNGKey(n), SPEC, (4,)))
+        _, st, info = m.step(st, arc, rng.normal(size=3) * 3, rng.normal(size=(n, 3)) * 3)
+    assert m._core._cache_size() == 1
+    assert info.plan.shape == (SMALL.horizon + 1, 3)
+    assert info.rollout_min_distance.shape == (SMALL.samples, SMALL.horizon)
+    assert 1.0 <= float(info.ess) <= SMALL.samples
+    # A pose goal is the second (and last) variant.
+    m.step(st, arc0, np.eye(4), None)
+    m.step(st, arc0, np.asarray(end_effector_pose(arc, SPEC)), None)
+    assert m._core._cache_size() == 2
+
+
+def test_empty_cloud_has_no_collision_cost(exact_mppi):
+    action, _, info = exact_mppi.step(exact_mppi.init(jax.random.PRNGKey(0)), SPEC.straight_state(), [2.0, 0, 6.0], [])
+    assert np.all(np.isfinite(action))
+    assert float(info.cost_coll) == 0.0 and float(info.current_min_distance) == np.inf
+
+
+def test_broad_phase_matches_brute_force_on_exact_geometry():
+    shape = make_shape("exact", SPEC)
+    rng = np.random.default_rng(0)
+    pts = jnp.asarray(rng.uniform([-3, -3, 0], [3, 3, 8], size=(200, 3)), jnp.float32)
+    mask = jnp.arange(200) < 180
+    base = sample_arc_lengths(jax.random.PRNGKey(2), SPEC, (4,))
+    u = project_controls(0.22 * jax.random.normal(jax.random.PRNGKey(5), (32, 5, 4, 3)), 0.3)
+    arcs = base + 0.05 * jnp.cumsum(u, axis=1)
+    bf = jax.jit(lambda a: rollout_min_distances_brute(shape, a, pts, mask))(arcs)
+    bp = jax.jit(lambda a: rollout_min_distances_broad(shape, a, pts, mask, 96, 16, 2))(arcs)
+    # Independent truth: the closed-form distance of every state.
+    truth = jax.jit(jax.vmap(jax.vmap(lambda a: jnp.min(jnp.where(mask, robot_signed_distance(pts, a, SPEC), jnp.inf)))))(arcs)
+    np.testing.assert_allclose(bf, truth, atol=1e-5)
+    agree = np.mean(np.abs(np.asarray(bp - bf)) <= 1e-5)
+    assert agree >= 0.99
+    assert np.all(np.asarray(bp) >= np.asarray(bf) - 1e-5)  # a subset never finds a nearer point
+
+
+def _drive(m, arc, goal, points, steps, key=0):
+    st = m.init(jax.random.PRNGKey(key))
+    arc = np.asarray(arc, np.float32)
+    pts = None if points is None else np.asarray(points)
+    min_exact, dist = np.inf, np.inf
+    for _ in range(steps):
+        action, st, _ = m.step(st, arc, goal, pts)
+        arc = arc + np.asarray(action) * m.config.dt
+        arc[:, 2] = 3 * SPEC.length - arc[:, 0] - arc[:, 1]  # remove float drift of the sum
+        if pts is not None:
+            min_exact = min(min_exact, float(jnp.min(robot_signed_distance(jnp.asarray(pts), jnp.asarray(arc), SPEC))))
+        dist = float(np.linalg.norm(np.asarray(end_effector_pose(jnp.asarray(arc), SPEC)[:3, 3]) - goal))
+        if dist < 0.2:
+            break
+    return dist, min_exact
+
+
+def test_reaches_a_reachable_goal_without_obstacles():
+    goal_arc = sample_arc_lengths(jax.random.PRNGKey(3), SPEC, (4,))
+    goal = np.asarray(end_effector_pose(goal_arc, SPEC)[:3, 3])
+    m = MPPI(SPEC, make_shape("spheres:2", SPEC), SMALL)
+    dist, _ = _drive(m, SPEC.straight_state(), goal, None, steps=120)
+    assert dist < 0.2
+
+
+def test_avoids_obstacles_between_robot_and_goal():
+    from ncedf.model import load_model
+
+    goal_arc = sample_arc_lengths(jax.random.PRNGKey(3), SPEC, (4,))
+    goal = np.asarray(end_effector_pose(goal_arc, SPEC)[:3, 3])
+    start = np.asarray(end_effector_pose(SPEC.straight_state(), SPEC)[:3, 3])
+    # A ball of points (radius 0.25) halfway along the straight line from the tip to the goal.
+    rng = np.random.default_rng(0)
+    v = rng.normal(size=(40, 3))
+    centre = 0.5 * (start + goal)
+    pts = centre + 0.25 * v / np.linalg.norm(v, axis=1, keepdims=True)
+    cfg = dataclasses.replace(SMALL, samples=128)
+    m = MPPI(SPEC, make_shape("ncedf", SPEC, model=load_model()), cfg)
+    dist, min_exact = _drive(m, SPEC.straight_state(), goal, pts, steps=200)
+    assert min_exact > 0.0
+    assert dist < 0.2
