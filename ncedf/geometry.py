@@ -232,10 +232,13 @@ def mesh_grid_faces(rings: int, around: int) -> np.ndarray:
     return np.concatenate([side, cap0, cap1]).astype(np.int32)
 
 
+_robot_surface_points_jit = jax.jit(robot_surface_points, static_argnums=2)
+
+
 def robot_mesh_arrays(arc: jnp.ndarray, spec: RobotSpec, rings: int = 24, around: int = 24):
     """Vertices (M * V, 3) and faces (M * F, 3) of the robot's closed link tubes."""
     coords = np.broadcast_to(mesh_grid_coords(rings, around), (spec.n_links, rings * around + 2, 3))
-    vertices = np.asarray(robot_surface_points(jnp.asarray(coords), jnp.asarray(arc), spec))
+    vertices = np.asarray(_robot_surface_points_jit(jnp.asarray(coords), jnp.asarray(arc), spec))
     faces = mesh_grid_faces(rings, around)
     per_link = rings * around + 2
     all_faces = faces[None] + per_link * np.arange(spec.n_links)[:, None, None]

@@ -11,13 +11,10 @@ Input encodings of a link-frame point ``p`` and the link's (theta, phi):
 
 Outside the box it was trained in (its *domain*, link frame) a network
 extrapolates. There its output is clamped between bounds of the true
-distance, with ``q`` the nearest point of the box and ``g = |p - q|``:
-the upper bound ``Gamma(q) + g`` (triangle inequality), and the larger of two
-lower bounds, ``sqrt(Gamma(q)^2 + g^2)`` (``p - q`` lies in the box's normal
-cone at ``q`` and the link inside the box) and the distance to the link's
-chord minus its sagitta and radius (the link lies in that capsule). The
-bounds hold up to the network's error at ``q``; the box is at least 0.85 m
-from the link, so beyond it errors cannot hide a collision.
+distance from the link's chord (its end points' segment): the link's backbone
+lies within the sagitta ``h`` of the chord (an arc of angle <= pi), so for a
+point outside the link ``chord - h - r <= distance <= chord + h``. The box is
+at least 0.85 m from the link, so beyond it no error can hide a collision.
 
 Weights are saved as flax msgpack bytes next to a JSON file of metadata
 (architecture, encoding, robot spec, training settings, dataset hash,
@@ -111,18 +108,25 @@ def encode(points: jnp.ndarray, theta, phi, encoding: str) -> jnp.ndarray:
     return jnp.concatenate([theta, to_bending_plane(points, phi)], axis=-1)
 
 
-def capsule_lower_bound(points: jnp.ndarray, theta, phi, spec: RobotSpec) -> jnp.ndarray:
-    """Lower bound of the distance to a link: to its chord, minus sagitta and r, (P,) m.
+def chord_bounds(points: jnp.ndarray, theta, phi, spec: RobotSpec) -> tuple[jnp.ndarray, jnp.ndarray]:
+    """Bounds of the distance from points outside a link to its surface, from its chord.
+
+    Every backbone point lies within the sagitta ``h`` of the chord and every
+    chord point within ``h`` of the backbone, so with ``c`` the distance to the
+    chord: ``c - h - r <= distance <= c + h`` (the upper bound for points
+    outside the link: the segment to the nearest backbone point crosses the surface).
 
     Args:
       points: (P, 3) link-frame points, m.  theta, phi: scalars, rad.
+    Returns:
+      lower (P,), upper (P,), m.
     """
     end = link_transform(theta, phi, spec)[:3, 3]
-    t = jnp.clip(points @ end / jnp.maximum(end @ end, 1e-12), 0.0, 1.0)
+    t = jnp.clip(points @ end / (end @ end), 0.0, 1.0)
     to_chord = jnp.linalg.norm(points - t[:, None] * end, axis=-1)
     _, versc, _ = _even_series(theta * theta / 4.0)
     sagitta = spec.length * theta / 4.0 * versc
-    return to_chord - sagitta - spec.radius
+    return to_chord - sagitta - spec.radius, to_chord + sagitta
 
 
 def init_params(key, config: ModelConfig):
@@ -162,17 +166,9 @@ class NCEDF:
         Returns:
           (P,) distances, m; beyond the domain, the bound from its nearest point.
         """
-        nearest = jnp.clip(points, jnp.asarray(self.domain[0]), jnp.asarray(self.domain[1]))
-        both = self.apply(encode(jnp.concatenate([points, nearest]), theta, phi, self.config.encoding))
-        raw, at_box = jnp.split(both, 2)
-        gap_sq = jnp.sum((points - nearest) ** 2, axis=-1)
-        outside = gap_sq > 0
-        gap = jnp.sqrt(jnp.where(outside, gap_sq, 1.0))
-        lower = jnp.maximum(
-            jnp.sqrt(at_box * at_box + jnp.where(outside, gap_sq, 1.0)),
-            capsule_lower_bound(points, theta, phi, self.spec),
-        )
-        upper = jnp.maximum(lower, at_box + gap)
+        raw = self.apply(encode(points, theta, phi, self.config.encoding))
+        outside = jnp.any((points < jnp.asarray(self.domain[0])) | (points > jnp.asarray(self.domain[1])), axis=-1)
+        lower, upper = chord_bounds(points, theta, phi, self.spec)
         return jnp.where(outside, jnp.clip(raw, lower, upper), raw)
 
     def robot_link_distances(self, points: jnp.ndarray, arc: jnp.ndarray) -> jnp.ndarray:

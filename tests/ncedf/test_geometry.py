@@ -16,7 +16,6 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from ncedf import geometry
 from ncedf.geometry import link_signed_distance, robot_mesh, robot_signed_distance, sample_link_surface
 from ncedf.robot import RobotSpec, forward_kinematics, sample_arc_lengths
 
@@ -45,17 +44,6 @@ def link_distance(points, theta, phi, dtype=jnp.float32):
     padded[:n] = points
     sd = link_sd(jnp.asarray(padded, dtype), float(theta), float(phi), SPEC1)
     return np.asarray(sd, dtype=np.float64)[:n]
-
-
-@pytest.fixture
-def jitted_mesh_points(monkeypatch):
-    """Make ``robot_mesh`` map its vertices with a jitted ``robot_surface_points``.
-
-    The same function, compiled once per shape instead of op by op in eager mode
-    (seconds per mesh shape); the mesh is otherwise built exactly as before.
-    """
-    jitted = jax.jit(geometry.robot_surface_points, static_argnums=2)
-    monkeypatch.setattr(geometry, "robot_surface_points", jitted)
 
 
 def surface_tree(points):
@@ -165,7 +153,6 @@ def test_link_distance_matches_dense_brute_force(theta, phi):
 
 
 @pytest.mark.parametrize("theta, phi", CONFIGS[2:])
-@pytest.mark.usefixtures("jitted_mesh_points")
 def test_link_sign_matches_trimesh_containment(theta, phi):
     rng = np.random.default_rng(11)
     pts = query_points(theta, phi, rng, n=800)
@@ -366,7 +353,6 @@ def test_sampling_is_uniform_by_area(theta, phi):
 # mesh
 
 
-@pytest.mark.usefixtures("jitted_mesh_points")
 def test_robot_mesh_closed_tubes_with_pappus_volume():
     spec = RobotSpec(3)
     arc = np.asarray(sample_arcs(jax.random.key(20), spec, (3,)), dtype=np.float64)

@@ -8,8 +8,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from ncedf.geometry import robot_signed_distance, to_bending_plane
-from ncedf.model import MLP, capsule_lower_bound, ModelConfig, ModelError, NCEDF, encode, init_params, load_model, save_model
+from ncedf.geometry import robot_signed_distance
+from ncedf.model import MLP, chord_bounds, ModelConfig, ModelError, NCEDF, encode, init_params, load_model, save_model
 from ncedf.robot import RobotSpec, arc_lengths_to_config, config_to_arc_lengths, forward_kinematics, sample_arc_lengths
 
 SPEC = RobotSpec(1)
@@ -128,29 +128,30 @@ def test_shipped_model_meets_the_paper_accuracy_on_fresh_robot_configurations():
     assert np.max(err[true < 0.5]) < 0.05
 
 
-def test_outside_the_training_box_the_link_distance_stays_between_bounds_of_the_truth():
-    model = load_model()
-    spec = model.spec
-    pts = np.asarray(jax.random.uniform(jax.random.PRNGKey(8), (3000, 3), minval=-9.0, maxval=9.0))
-    lo, hi = np.array(model.domain[0]), np.array(model.domain[1])
-    nearest = np.clip(pts, lo, hi)
-    gap = np.linalg.norm(pts - nearest, axis=1)
-    outside = gap > 0
-    assert outside.mean() > 0.5
-
-    def exact(p, theta, phi):
+def test_chord_bounds_enclose_the_exact_distance():
+    spec = RobotSpec(1)
+    pts = jax.random.uniform(jax.random.PRNGKey(9), (5000, 3), minval=-6.0, maxval=6.0)
+    for theta, phi in [(0.0, 0.0), (1.2, 0.4), (2.3, -2.0)]:
         arc = config_to_arc_lengths(jnp.array([theta]), jnp.array([phi]), spec)
-        return np.abs(np.asarray(robot_signed_distance(jnp.asarray(p), arc, spec)))
+        sd = np.asarray(robot_signed_distance(pts, arc, spec))
+        lower, upper = map(np.asarray, chord_bounds(pts, theta, phi, spec))
+        out = sd > 0
+        assert np.all(lower[out] <= sd[out] + 1e-5) and np.all(sd[out] <= upper[out] + 1e-5)
 
+
+def test_outside_the_training_box_the_link_distance_is_clamped_to_the_chord_bounds():
+    model = load_model()
+    pts = jax.random.uniform(jax.random.PRNGKey(8), (3000, 3), minval=-9.0, maxval=9.0)
+    lo, hi = np.array(model.domain[0]), np.array(model.domain[1])
+    outside = np.any((np.asarray(pts) < lo) | (np.asarray(pts) > hi), axis=1)
+    assert outside.mean() > 0.5
+    inside_model = dataclasses.replace(model, domain=((-100.0,) * 3, (100.0,) * 3))
     for theta, phi in [(0.0, 0.0), (1.2, 0.4), (2.2, -2.0)]:
-        pred = np.asarray(model.link_distance(jnp.asarray(pts), theta, phi))[outside]
-        at_box = np.asarray(model.link_distance(jnp.asarray(nearest), theta, phi))[outside]
-        g = gap[outside]
-        capsule = np.asarray(capsule_lower_bound(jnp.asarray(pts), theta, phi, spec))[outside]
-        true = exact(pts, theta, phi)[outside]
-        assert np.all(capsule <= true + 1e-5)  # an exact lower bound
-        # Clamped between the triangle-inequality upper bound and the lower bounds.
-        lower = np.maximum(np.sqrt(at_box**2 + g**2), capsule)
-        assert np.all(pred >= lower - 1e-4)
-        assert np.all(pred <= np.maximum(lower, at_box + g) + 1e-4)
-        assert np.mean(np.abs(pred - true) / true) < 0.05
+        pred = np.asarray(model.link_distance(pts, theta, phi))
+        raw = np.asarray(inside_model.link_distance(pts, theta, phi))
+        lower, upper = map(np.asarray, chord_bounds(pts, theta, phi, model.spec))
+        np.testing.assert_allclose(pred[~outside], raw[~outside])
+        np.testing.assert_allclose(pred[outside], np.clip(raw, lower, upper)[outside], rtol=1e-6)
+        arc = config_to_arc_lengths(jnp.array([theta]), jnp.array([phi]), model.spec)
+        true = np.abs(np.asarray(robot_signed_distance(pts, arc, model.spec)))[outside]
+        assert np.mean(np.abs(pred[outside] - true) / true) < 0.05

@@ -1,6 +1,5 @@
 """Training: loss terms in closed form, clipping before the update, a short run learns."""
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
