@@ -1,0 +1,59 @@
+"""Accuracy of N-CEDF variants trained with the same budget (paper Tables I-II and beyond).
+
+Trains each variant for ``--epochs`` on the same data and prints the
+validation metrics against exact distances: the paper's input encoding
+against the bending-plane encoding, the plain distance output against the
+absolute value of a learned signed distance, with and without the
+over-estimation loss, and the shipped recipe (near-surface samples and
+weights).
+
+    python bench/model_variants.py --epochs 4
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+from ncedf.data import DatasetConfig, ValidationConfig, load_dataset
+from ncedf.model import ModelConfig
+from ncedf.robot import RobotSpec
+from ncedf.train import TrainConfig, train
+
+# name -> (model settings, train settings, extra near-surface points)
+VARIANTS = {
+    "paper encoding, distance output": (dict(encoding="paper", output="distance"), {}, 0),
+    "  same, no over-estimation loss": (dict(encoding="paper", output="distance"), dict(lambda_over=0.0), 0),
+    "bending-plane, distance output": (dict(encoding="bending-plane", output="distance"), {}, 0),
+    "bending-plane, signed-abs": (dict(encoding="bending-plane", output="signed-abs"), {}, 0),
+    "shipped recipe (+near samples, weights)": (
+        dict(encoding="bending-plane", output="signed-abs"), dict(near_weight=5.0, lambda_over=10.0), 4096),
+}
+COLUMNS = ("mae", "rmse", "moe", "over_p999", "near_mae", "near_moe", "surface_mean")
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--epochs", type=int, default=4)
+    p.add_argument("--layers", type=int, default=4)
+    p.add_argument("--width", type=int, default=16)
+    p.add_argument("--only", nargs="*", help="substrings of variant names to run")
+    args = p.parse_args()
+    spec = RobotSpec(1)
+    val = load_dataset(ValidationConfig(), spec)
+    print(f"{args.layers} x {args.width}, {args.epochs} epochs each, validation 100 x 4096 exact labels")
+    print(f"{'variant':42s} " + " ".join(f"{c:>12s}" for c in COLUMNS) + "   train s")
+    for name, (model_kw, train_kw, near) in VARIANTS.items():
+        if args.only and not any(s in name for s in args.only):
+            continue
+        data = load_dataset(DatasetConfig(n_near=near), spec)
+        start = time.perf_counter()
+        _, history = train(ModelConfig(args.layers, args.width, **model_kw),
+                           TrainConfig(epochs=args.epochs, **train_kw), data, val, spec, progress=False)
+        m = history[-1]
+        print(f"{name:42s} " + " ".join(f"{m[c]:12.4f}" for c in COLUMNS) + f"   {time.perf_counter() - start:7.0f}",
+              flush=True)
+
+
+if __name__ == "__main__":
+    main()
