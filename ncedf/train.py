@@ -14,8 +14,10 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import os
 import sys
 import time
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -188,10 +190,12 @@ def train(
     spec: RobotSpec,
     progress: bool = True,
     domain: tuple = (BOX_MIN, BOX_MAX),
+    on_epoch=None,
 ) -> tuple[NCEDF, list[dict]]:
     """Train a link network; returns the model and per-epoch history.
 
-    ``domain`` is the box (link frame, m) the training points cover.
+    ``domain`` is the box (link frame, m) the training points cover;
+    ``on_epoch(row)``, if given, receives each epoch's history row.
     """
     x, y = training_arrays(data, model_cfg)
     n = int(y.shape[0])
@@ -215,8 +219,27 @@ def train(
         metrics = evaluate_model(model, val)
         row = {"epoch": i + 1, "seconds": seconds, "samples_per_second": n / seconds, **terms, **metrics}
         history.append(row)
+        if on_epoch is not None:
+            on_epoch(row)
         bar.set_postfix(mae=f"{metrics['mae']:.4f}", moe=f"{metrics['moe']:.4f}", near_mae=f"{metrics['near_mae']:.4f}")
     return NCEDF(params=params, config=model_cfg, spec=spec, domain=domain), history
+
+
+def _output_problem(stem: Path, overwrite: bool) -> str | None:
+    """Why the weights cannot be written to ``stem``.msgpack/.json, checked before training."""
+    stem = stem.with_suffix("")
+    targets = [stem.with_suffix(".msgpack"), stem.with_suffix(".json")]
+    existing = [str(t) for t in targets if t.exists()]
+    if existing and not overwrite:
+        return f"{existing[0]} exists (use --overwrite to replace it)"
+    folder = stem.parent
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        return f"cannot create the output folder {folder}: {exc.strerror}"
+    if not os.access(folder, os.W_OK):
+        return f"the output folder {folder} is not writable"
+    return None
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -243,6 +266,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--val-points", type=int, default=4096)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", required=True, help="output stem: writes OUT.msgpack and OUT.json")
+    p.add_argument("--record", metavar="STEM", help="also record the run (per-epoch /metrics) to STEM.rrd and STEM.mcap")
+    p.add_argument("--overwrite", action="store_true", help="overwrite existing weights and recording")
     return p.parse_args(argv)
 
 
@@ -269,20 +294,47 @@ def main(argv=None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     spec = RobotSpec(n_links=1)
+    problem = _output_problem(Path(args.out), args.overwrite)
+    if problem:
+        print(f"error: {problem}", file=sys.stderr)
+        return 2
+    settings = {
+        "training": dataclasses.asdict(cfg),
+        "dataset": dataclasses.asdict(data_cfg),
+        "validation": dataclasses.asdict(val_cfg),
+    }
+    recording = None
+    if args.record:
+        from recorder import Recorder, RecorderError
+
+        meta = {"scenario": "training", "architecture": dataclasses.asdict(model_cfg), **settings,
+                "robot": dataclasses.asdict(spec), "jax_version": jax.__version__}
+        try:
+            recording = Recorder(args.record, meta, overwrite=args.overwrite)
+        except RecorderError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
     start = time.perf_counter()
     data = load_dataset(data_cfg, spec)
     val = load_dataset(val_cfg, spec)
     data_seconds = time.perf_counter() - start
     domain = (data_cfg.box_min, data_cfg.box_max)
-    model, history = train(model_cfg, cfg, data, val, spec, domain=domain)
+
+    def record(row):
+        if recording is not None:
+            recording.log_step(row["epoch"], float(row["epoch"]), metrics={k: float(v) for k, v in row.items() if k != "epoch"})
+
+    model, history = train(model_cfg, cfg, data, val, spec, domain=domain, on_epoch=record)
     train_seconds = time.perf_counter() - start - data_seconds
+    if recording is not None:
+        recording.finish({"outcome": "success", "steps": len(history)})
     final = history[-1]
     metrics = {k: v for k, v in final.items() if k not in ("epoch", "seconds", "samples_per_second")}
     extra = {
         "command": "python -m ncedf.train " + " ".join(sys.argv[1:] if argv is None else argv),
-        "training": dataclasses.asdict(cfg),
-        "dataset": {**dataclasses.asdict(data_cfg), "hash": data.key, "samples": data.n_samples},
-        "validation": {**dataclasses.asdict(val_cfg), "hash": val.key},
+        **settings,
+        "dataset": {**settings["dataset"], "hash": data.key, "samples": data.n_samples},
+        "validation": {**settings["validation"], "hash": val.key},
         "metrics": metrics,
         "train_seconds": round(train_seconds, 1),
         "history": [{k: round(v, 6) for k, v in row.items()} for row in history],

@@ -106,3 +106,23 @@ def test_cli_rejects_bad_values_with_one_line(capsys, tmp_path):
     err = capsys.readouterr().err.strip()
     assert err == "error: epochs must be >= 1, got 0"
     assert not (tmp_path / "m.msgpack").exists()
+
+
+def test_cli_trains_saves_a_loadable_model_and_records_the_run(tmp_path):
+    from ncedf.model import load_model
+    from recorder import load_run
+
+    out, rec = tmp_path / "m", tmp_path / "train-run"
+    argv = ["--layers", "2", "--width", "8", "--epochs", "2", "--batch-size", "128", "--configs", "8", "--grid", "8",
+            "--surface", "32", "--val-configs", "4", "--val-points", "256", "--out", str(out), "--record", str(rec)]
+    assert main(argv) == 0
+    model = load_model(out)
+    meta = model.metadata
+    assert dict(meta["architecture"])["layers"] == 2 and dict(meta["dataset"])["n_configs"] == 8
+    run = load_run(f"{rec}.mcap")
+    assert list(run.metrics["step"]) == [1, 2]
+    assert run.metrics["mae"].iloc[-1] == pytest.approx(dict(meta["metrics"])["mae"], rel=1e-6)
+    assert run.outcome["outcome"] == "success"
+    # Neither the weights nor the recording are overwritten silently.
+    assert main(argv) == 2
+    assert main(argv + ["--record", str(tmp_path / "other")]) == 2
