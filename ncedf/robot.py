@@ -200,8 +200,31 @@ def link_transform(theta: jnp.ndarray, phi: jnp.ndarray, spec: RobotSpec) -> jnp
     return link_transform_from_bending(ab, spec.length)
 
 
+def _link_components(ab: jnp.ndarray, length: float):
+    """Rotation (3 x 3 nested lists) and translation (3 list) of every link transform, per component.
+
+    The same expressions as :func:`link_transform_from_bending`, kept as
+    separate arrays of shape (...) so that chaining them is element-wise.
+    """
+    a, b = ab[..., 0], ab[..., 1]
+    sinc, versc, cos = _even_series(a * a + b * b)
+    r00 = 1.0 - versc * a * a
+    r01 = -versc * a * b
+    r02 = sinc * a
+    r11 = 1.0 - versc * b * b
+    r12 = sinc * b
+    rot = [[r00, r01, r02], [r01, r11, r12], [-r02, -r12, cos]]
+    trans = [length * versc * a, length * versc * b, length * sinc]
+    return rot, trans
+
+
 def link_base_frames(arc: jnp.ndarray, spec: RobotSpec) -> jnp.ndarray:
     """Forward kinematics (paper eq. 4): the chain of link transforms.
+
+    Computed per component (3 x 3 rotation and translation as separate
+    arrays, chained with scalar products) rather than as batched 4 x 4 matrix
+    products, which XLA on CPU runs slowly for large batches; the result is
+    the same product ``T_1 T_2 ... T_i``.
 
     Args:
       arc: (..., M, 3) arc lengths, m.
@@ -209,10 +232,26 @@ def link_base_frames(arc: jnp.ndarray, spec: RobotSpec) -> jnp.ndarray:
       (..., M + 1, 4, 4): frames[0] is the base (identity), frames[i] the end
       of link i (= base of link i + 1), frames[M] the end-effector pose.
     """
-    local = link_transform_from_bending(bending_vector(arc, spec), spec.length)
-    frames = [jnp.broadcast_to(jnp.eye(4, dtype=local.dtype), local.shape[:-3] + (4, 4))]
-    for i in range(local.shape[-3]):
-        frames.append(frames[-1] @ local[..., i, :, :])
+    ab = bending_vector(arc, spec)
+    lrot, ltrans = _link_components(ab, spec.length)
+    batch = ab.shape[:-2]
+    zero = jnp.zeros(batch, ab.dtype)
+    one = jnp.ones(batch, ab.dtype)
+    rot = [[one if i == j else zero for j in range(3)] for i in range(3)]
+    trans = [zero, zero, zero]
+    frames = []
+
+    def pack(rot, trans):
+        rows = [[rot[i][0], rot[i][1], rot[i][2], trans[i]] for i in range(3)] + [[zero, zero, zero, one]]
+        return jnp.stack([jnp.stack(row, axis=-1) for row in rows], axis=-2)
+
+    frames.append(pack(rot, trans))
+    for m in range(ab.shape[-2]):
+        lr = [[x[..., m] for x in row] for row in lrot]
+        lt = [x[..., m] for x in ltrans]
+        trans = [rot[i][0] * lt[0] + rot[i][1] * lt[1] + rot[i][2] * lt[2] + trans[i] for i in range(3)]
+        rot = [[rot[i][0] * lr[0][j] + rot[i][1] * lr[1][j] + rot[i][2] * lr[2][j] for j in range(3)] for i in range(3)]
+        frames.append(pack(rot, trans))
     return jnp.stack(frames, axis=-3)
 
 
