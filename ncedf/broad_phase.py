@@ -21,11 +21,18 @@ Selection rule (two stages, fixed sizes, so the program shape never changes):
 1. Per horizon step ``k`` and link ``m``, over all rollouts: the mean capsule
    (the average over rollouts of the sub-arc end points ``a_s``, ``b_s``). The
    ``K1`` points nearest to the mean capsule's segments (smallest
-   ``min_s dist(p, mean segment s)``) are the candidates of (k, m).
+   ``min_s dist(p, mean segment s)``) are the candidates of (k, m). This costs
+   H * M * S * P segment distances, independent of the sample count.
 2. Per rollout state (j, k): for every link m and each of its K1 candidates,
    ``LB(p, m)`` from that state's own capsules; the ``K2`` (link, point) pairs
    with the smallest ``LB`` over all links are evaluated by the representation.
    The state's minimum distance is the minimum over those K2 values.
+
+Layout: everything is computed per component (x, y, z as separate arrays) with
+the candidates on the last axis, for all N x H states at once; the (N, H, M,
+K1) bound array is the largest intermediate (N * H * M * K1 floats, 16 MB at
+the paper setting). Forward kinematics comes in as frames (the MPPI computes
+them once for the goal cost too).
 
 Masked (padding) points get an infinite bound and distance, so they are never
 preferred over real points and never count.
@@ -45,6 +52,36 @@ import jax.numpy as jnp
 from ncedf.robot import RobotSpec, _even_series, bending_vector, forward_kinematics
 
 
+def capsule_points(arcs: jnp.ndarray, frames: jnp.ndarray, spec: RobotSpec, segments: int):
+    """Backbone points bounding the sub-arc chords of every link, per component.
+
+    Args:
+      arcs: (..., M, 3) arc lengths, m.  frames: (..., M + 1, 4, 4) their forward kinematics.
+      segments: sub-arcs per link, S >= 1.
+    Returns:
+      xyz: tuple of 3 arrays (..., M, S + 1): world backbone points at arc
+      fractions 0, 1/S, .., 1 (sub-arc s runs from point s to point s + 1), m;
+      radius: (..., M) capsule radius (sub-arc sagitta + r), m.
+    """
+    ab = bending_vector(arcs, spec)  # (..., M, 2)
+    u = jnp.linspace(0.0, 1.0, segments + 1, dtype=ab.dtype)  # (S + 1,)
+    ta, tb = ab[..., 0:1] * u, ab[..., 1:2] * u  # (..., M, S + 1) bending vector of the partial arc
+    sinc, versc, _ = _even_series(ta * ta + tb * tb)
+    length = spec.length * u
+    local = (length * versc * ta, length * versc * tb, length * sinc)
+    base = frames[..., :-1, :, :]  # (..., M, 4, 4)
+    xyz = tuple(
+        base[..., i, 0:1] * local[0] + base[..., i, 1:2] * local[1] + base[..., i, 2:3] * local[2] + base[..., i, 3:4]
+        for i in range(3)
+    )
+    theta_sq = ab[..., 0] * ab[..., 0] + ab[..., 1] * ab[..., 1]
+    half_sq = theta_sq / (2.0 * segments) ** 2  # (half the sub-arc angle)^2
+    _, versc_half, _ = _even_series(half_sq)
+    # sagitta = rho (1 - cos(alpha / 2)) = (L / S) (alpha / 2)^2 versc / alpha = (L / S) (alpha / 4) versc
+    sagitta = (spec.length / segments) * (jnp.sqrt(half_sq) / 2.0) * versc_half
+    return xyz, sagitta + spec.radius
+
+
 def link_capsules(arc: jnp.ndarray, spec: RobotSpec, segments: int, frames=None):
     """Bounding capsules of every link of one configuration.
 
@@ -55,30 +92,15 @@ def link_capsules(arc: jnp.ndarray, spec: RobotSpec, segments: int, frames=None)
       a, b: (M, S, 3) world end points of each sub-arc's chord, m;
       radius: (M,) capsule radius (sub-arc sagitta + r), m.
     """
-    ab = bending_vector(arc, spec)  # (M, 2)
-    frames = (forward_kinematics(arc, spec) if frames is None else frames)[:-1]  # (M, 4, 4)
-    u = jnp.linspace(0.0, 1.0, segments + 1)  # (S + 1,)
-    t_ab = ab[:, None, :] * u[None, :, None]  # (M, S + 1, 2) bending vector of the partial arc
-    sinc, versc, _ = _even_series(jnp.sum(t_ab * t_ab, axis=-1))
-    length = spec.length * u[None, :]
-    local = jnp.stack([length * versc * t_ab[..., 0], length * versc * t_ab[..., 1], length * sinc], axis=-1)
-    world = jnp.einsum("mij,msj->msi", frames[:, :3, :3], local) + frames[:, None, :3, 3]
-    theta_sq = jnp.sum(ab * ab, axis=-1)
-    half = jnp.sqrt(theta_sq) / (2.0 * segments)  # half the sub-arc angle
-    _, versc_half, _ = _even_series(half * half)
-    # sagitta = rho (1 - cos(alpha / 2)) = (L / S) (alpha / 2)^2 versc / alpha = (L / S) (alpha / 4) versc
-    sagitta = (spec.length / segments) * (half / 2.0) * versc_half
-    return world[:, :-1], world[:, 1:], sagitta + spec.radius
+    frames = forward_kinematics(arc, spec) if frames is None else frames
+    xyz, radius = capsule_points(arc, frames, spec, segments)
+    pts = jnp.stack(xyz, axis=-1)  # (M, S + 1, 3)
+    return pts[:, :-1], pts[:, 1:], radius
 
 
-def segment_distance(p: jnp.ndarray, a: jnp.ndarray, b: jnp.ndarray) -> jnp.ndarray:
-    """Distance from points ``p`` to segments ``[a, b]`` (broadcasting, last axis 3).
-
-    Computed per component (structure of arrays) so XLA fuses it on CPU.
-    """
-    px, py, pz = p[..., 0], p[..., 1], p[..., 2]
-    ax, ay, az = a[..., 0], a[..., 1], a[..., 2]
-    ux, uy, uz = b[..., 0] - ax, b[..., 1] - ay, b[..., 2] - az
+def _segment_distance_c(px, py, pz, ax, ay, az, bx, by, bz):
+    """Distance from points to segments [a, b], per component (broadcasting)."""
+    ux, uy, uz = bx - ax, by - ay, bz - az
     vx, vy, vz = px - ax, py - ay, pz - az
     uu = jnp.maximum(ux * ux + uy * uy + uz * uz, 1e-12)
     t = jnp.clip((vx * ux + vy * uy + vz * uz) / uu, 0.0, 1.0)
@@ -86,38 +108,107 @@ def segment_distance(p: jnp.ndarray, a: jnp.ndarray, b: jnp.ndarray) -> jnp.ndar
     return jnp.sqrt(dx * dx + dy * dy + dz * dz)
 
 
-def stage_one(a: jnp.ndarray, b: jnp.ndarray, points: jnp.ndarray, mask: jnp.ndarray, k1: int) -> jnp.ndarray:
-    """Candidates per link for one horizon step, over all rollouts.
+def segment_distance(p: jnp.ndarray, a: jnp.ndarray, b: jnp.ndarray) -> jnp.ndarray:
+    """Distance from points ``p`` to segments ``[a, b]`` (broadcasting, last axis 3)."""
+    return _segment_distance_c(p[..., 0], p[..., 1], p[..., 2], a[..., 0], a[..., 1], a[..., 2], b[..., 0], b[..., 1], b[..., 2])
+
+
+def _capsule_distance(p, xyz, segments: int):
+    """min over sub-arcs s of dist(p, [point s, point s + 1]); ``p`` and ``xyz`` broadcast per component."""
+    out = None
+    for s in range(segments):
+        d = _segment_distance_c(*p, *(c[..., s] for c in xyz), *(c[..., s + 1] for c in xyz))
+        out = d if out is None else jnp.minimum(out, d)
+    return out
+
+
+def stage_one(xyz, points: jnp.ndarray, mask: jnp.ndarray, k1: int, segments: int) -> jnp.ndarray:
+    """Candidates per (horizon step, link), over all rollouts.
 
     Args:
-      a, b: (N, M, S, 3) capsule segments of the N rollout states of this step.
+      xyz: 3 arrays (N, H, M, S + 1): capsule backbone points of the rollout states.
       points: (P, 3); mask: (P,) bool.  k1: candidates per link (<= P).
     Returns:
-      (M, k1) int indices into ``points``: the k1 points nearest to the mean
-      (over rollouts) capsule segments of each link.
+      (H, M, k1) int indices into ``points``: the k1 points nearest to the mean
+      (over rollouts) capsule segments of each (step, link).
     """
-    ma, mb = jnp.mean(a, axis=0), jnp.mean(b, axis=0)  # (M, S, 3)
-    d = segment_distance(points[None, None, :, :], ma[:, :, None, :], mb[:, :, None, :])  # (M, S, P)
-    d = jnp.where(mask[None, :], jnp.min(d, axis=1), jnp.inf)
+    mean = tuple(jnp.mean(c, axis=0)[..., None, :] for c in xyz)  # (H, M, 1, S + 1)
+    d = _capsule_distance((points[:, 0], points[:, 1], points[:, 2]), mean, segments)  # (H, M, P)
+    d = jnp.where(mask, d, jnp.inf)
     return jax.lax.top_k(-d, k1)[1]
 
 
-def stage_two(a, b, radius, cand_points, cand_mask, k2: int):
-    """The k2 (link, candidate) pairs of one rollout state with the smallest lower bound.
+def smallest(values: jnp.ndarray, k: int, offset: float = 0.0) -> jnp.ndarray:
+    """Positions of the k smallest entries along the last axis, (..., k), smallest first.
+
+    ``argmin`` and ``top_k`` are many times slower on CPU than a plain ``min``.
+    So the position is packed into the value: ``values + offset`` (made >= 0;
+    ``offset`` must bound ``-values`` from above) keeps its float order in its
+    bit pattern, whose lowest ``ceil(log2 n)`` bits are replaced by the
+    position; k passes of a fused ``min`` (each over the entries above the
+    previous one) then give values and positions at once. The packing moves a
+    value by at most ``n`` units in the last place (about 2e-5 m at 1 m for n =
+    128), which only reorders nearly tied bounds. Non-finite entries rank last;
+    if fewer than k entries are finite, the remaining positions are arbitrary
+    valid positions (harmless for a minimum over the selected pairs).
+    """
+    n = values.shape[-1]
+    if k >= n:
+        return jnp.broadcast_to(jnp.arange(n, dtype=jnp.int32), values.shape[:-1] + (n,))
+    slot_bits = max(1, (n - 1).bit_length())
+    low = jnp.int32((1 << slot_bits) - 1)
+    v = jnp.clip(values.astype(jnp.float32) + offset, 0.0, 1e30)  # +inf and NaN -> 1e30 (NaN: clip keeps NaN)
+    v = jnp.where(jnp.isnan(v), 1e30, v)
+    bits = jax.lax.bitcast_convert_type(v, jnp.int32)
+    keys = jax.lax.bitcast_convert_type((bits & ~low) | jnp.arange(n, dtype=jnp.int32), jnp.float32)
+    out, prev = [], None
+    for _ in range(k):
+        cur = keys if prev is None else jnp.where(keys > prev[..., None], keys, jnp.inf)
+        prev = jnp.min(cur, axis=-1)
+        out.append(prev)
+    pos = jax.lax.bitcast_convert_type(jnp.stack(out, axis=-1), jnp.int32) & low
+    return jnp.minimum(pos, n - 1)
+
+
+def stage_two(xyz, radius, idx, points, mask, k2: int, segments: int, offset: float, group: int = 8):
+    """The k2 (link, candidate) pairs of every rollout state with the smallest lower bound.
+
+    ``LB(p, m)`` (the state's own sub-arc capsules) over all M * K1 candidates
+    of the step; the k2 smallest are found exactly in two rounds: the
+    candidates of each link are cut into groups of ``group``; the k2 smallest
+    bounds lie in the k2 groups with the smallest minima (a group holding one
+    of them has a minimum no larger than it, and at most k2 - 1 bounds are
+    smaller), so only those k2 * group bounds are ranked again. The group
+    minima fuse with the bound computation: no (N, H, M, K1) array is stored.
 
     Args:
-      a, b: (M, S, 3) this state's capsule segments; radius: (M,).
-      cand_points: (M, K1, 3) the step's candidates per link; cand_mask (M, K1).
-      k2: pairs to keep (<= M * K1).
+      xyz: 3 arrays (N, H, M, S + 1): capsule backbone points; radius: (N, H, M).
+      idx: (H, M, K1) candidates of each (step, link).  points (P, 3), mask (P,).
+      offset: bounds the capsule radii from above (a sagitta is at most L / 2): r + L.
     Returns:
-      link (k2,) and slot (k2,) int: pair i is candidate ``slot[i]`` of link ``link[i]``.
+      link (N, H, k2) and point index (N, H, k2) of the selected pairs.
     """
-    d = segment_distance(cand_points[:, None, :, :], a[:, :, None, :], b[:, :, None, :])  # (M, S, K1)
-    lb = jnp.min(d, axis=1) - radius[:, None]
-    lb = jnp.where(cand_mask, lb, jnp.inf)
-    k1 = cand_points.shape[1]
-    flat = jax.lax.top_k(-lb.reshape(-1), k2)[1]
-    return flat // k1, flat % k1
+    n_steps, n_links, k1 = idx.shape
+    g = group if k1 % group == 0 and k1 > group else 1
+    n_groups = k1 // g
+    k2 = min(k2, n_links * n_groups)
+    gidx = idx.reshape(n_steps, n_links, n_groups, g)
+    cand = tuple(points[gidx, i][None] for i in range(3))  # (1, H, M, G, g)
+    d = _capsule_distance(cand, tuple(c[..., None, None, :] for c in xyz), segments)  # (N, H, M, G, g)
+    d = jnp.where(mask[gidx], d - radius[..., None, None], jnp.inf)
+    gmin = jnp.min(d, axis=-1).reshape(d.shape[:2] + (n_links * n_groups,))
+    best = smallest(gmin, k2, offset=offset)  # (N, H, k2) flat group index
+    link = best // n_groups
+    pid = jnp.take_along_axis(jnp.broadcast_to(idx.reshape(n_steps, n_links * n_groups, g), gmin.shape[:2] + (n_links * n_groups, g)),
+                              best[..., None], axis=2)  # (N, H, k2, g)
+    if g == 1:
+        return link, pid[..., 0]
+    p = tuple(points[pid, i] for i in range(3))
+    ends = tuple(jnp.take_along_axis(c, link[..., None], axis=2)[..., None, :] for c in xyz)  # (N, H, k2, 1, S + 1)
+    d = _capsule_distance(p, ends, segments) - jnp.take_along_axis(radius, link, axis=2)[..., None]
+    d = jnp.where(mask[pid], d, jnp.inf).reshape(d.shape[:2] + (k2 * g,))
+    pick = smallest(d, k2, offset=offset)  # (N, H, k2)
+    return jnp.take_along_axis(link, pick // g, axis=-1), jnp.take_along_axis(pid.reshape(d.shape), pick, axis=-1)
 
 
 def rollout_min_distances_broad(shape, arcs, points, mask, k1: int, k2: int, segments: int, frames=None):
@@ -138,26 +229,11 @@ def rollout_min_distances_broad(shape, arcs, points, mask, k1: int, k2: int, seg
     k2 = max(1, min(k2, n_links * k1))
     if frames is None:
         frames = forward_kinematics(arcs, spec)
-    a, b, radius = jax.vmap(jax.vmap(lambda x, f: link_capsules(x, spec, segments, f)))(arcs, frames)
-
-    def per_step(args):
-        arcs_k, frames_k, a_k, b_k, r_k = args  # (N, M, 3), (N, M + 1, 4, 4), (N, M, S, 3), ..., (N, M)
-        idx = stage_one(a_k, b_k, points, mask, k1)  # (M, K1)
-        cand = points[idx]
-        cand_mask = mask[idx]
-
-        def per_state(arc, ff, aa, bb, rr):
-            link, slot = stage_two(aa, bb, rr, cand, cand_mask, k2)
-            pidx = idx[link, slot]
-            geom = shape.prepare(arc, ff)
-            d = shape.pair_distances(geom, points[pidx], link)
-            return jnp.min(jnp.where(mask[pidx], d, jnp.inf))
-
-        return jax.vmap(per_state)(arcs_k, frames_k, a_k, b_k, r_k)
-
-    swap = lambda x: jnp.swapaxes(x, 0, 1)  # noqa: E731
-    out = jax.lax.map(per_step, (swap(arcs), swap(frames), swap(a), swap(b), swap(radius)))  # (H, N)
-    return out.T
+    xyz, radius = capsule_points(arcs, frames, spec, segments)  # 3 x (N, H, M, S + 1), (N, H, M)
+    idx = stage_one(xyz, points, mask, k1, segments)  # (H, M, K1)
+    link, pidx = stage_two(xyz, radius, idx, points, mask, k2, segments, spec.radius + spec.length)  # (N, H, K2)
+    d = shape.state_pair_distances(arcs, frames, points[pidx], link)  # (N, H, K2)
+    return jnp.min(jnp.where(mask[pidx], d, jnp.inf), axis=-1)
 
 
 def rollout_min_distances_brute(shape, arcs, points, mask):

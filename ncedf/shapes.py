@@ -44,7 +44,7 @@ from ncedf.geometry import (
     surface_points_bending_plane,
     to_bending_plane,
 )
-from ncedf.robot import RobotSpec, arc_lengths_to_config, forward_kinematics
+from ncedf.robot import RobotSpec, _even_series, arc_lengths_to_config, forward_kinematics, link_transform
 
 DEFAULT_SPHERES_PER_LINK = 8
 
@@ -66,10 +66,13 @@ class LinkGeometry(NamedTuple):
 
 
 def _to_local(frames: jnp.ndarray, link: jnp.ndarray, points: jnp.ndarray) -> jnp.ndarray:
-    """World points (K, 3) -> the base frame of link ``link[k]`` each, (K, 3)."""
-    rot = frames[link, :3, :3]
-    trans = frames[link, :3, 3]
-    return jnp.einsum("kji,kj->ki", rot, points - trans)
+    """World points (K, 3) -> the base frame of link ``link[k]`` each, (K, 3).
+
+    ``R^T (p - t)`` per component: a batched (K, 3, 3) product is slow on CPU.
+    """
+    f = frames[link]  # (K, 4, 4)
+    v = [points[:, j] - f[:, j, 3] for j in range(3)]
+    return jnp.stack([f[:, 0, i] * v[0] + f[:, 1, i] * v[1] + f[:, 2, i] * v[2] for i in range(3)], axis=-1)
 
 
 def _to_local_all(frames: jnp.ndarray, points: jnp.ndarray) -> jnp.ndarray:
@@ -106,6 +109,14 @@ class _Base:
     def min_distance(self, points: jnp.ndarray, arc: jnp.ndarray, mask=None) -> jnp.ndarray:
         """Smallest distance from the (unmasked) points to the robot; +inf if none."""
         return _masked_min(self.distances(points, arc), mask)
+
+    def state_pair_distances(self, arcs, frames, points, link):
+        """``pair_distances`` for a batch of states: arcs (B..., M, 3), frames (B..., M + 1, 4, 4),
+        points (B..., K, 3), link (B..., K) -> (B..., K)."""
+        fn = lambda a, f, p, k: self.pair_distances(self.prepare(a, f), p, k)  # noqa: E731
+        for _ in range(arcs.ndim - 2):
+            fn = jax.vmap(fn)
+        return fn(arcs, frames, points, link)
 
     def _base_geometry(self, arc: jnp.ndarray, frames=None) -> LinkGeometry:
         theta, phi = arc_lengths_to_config(arc, self.spec)
@@ -156,12 +167,56 @@ class NCEDFShape(_Base):
         return self._base_geometry(arc, frames)
 
     def pair_distances(self, geom: LinkGeometry, points, link):
-        local = _to_local(geom.frames, link, points)
+        """``model.link_distance`` of point k to link ``link[k]``, vectorised over the pairs.
 
-        def one(p, th, ph):
-            return self.model.link_distance(p[None], th, ph)[0]
+        The same computation as ``NCEDF.link_distance`` (bending-plane or paper
+        encoding, network, chord-bound clamp outside the training box), written
+        for per-pair (theta, phi) so the network runs as one (K, D) batch
+        instead of K batched matrix-vector products.
+        """
+        from ncedf.model import encode
 
-        return jax.vmap(one)(local, geom.theta[link], geom.phi[link])
+        model = self.model
+        local = _to_local(geom.frames, link, points)  # (K, 3)
+        theta, phi = geom.theta[link], geom.phi[link]
+        raw = model.apply(encode(local, theta, phi, model.config.encoding))
+        outside = jnp.any((local < jnp.asarray(model.domain[0])) | (local > jnp.asarray(model.domain[1])), axis=-1)
+        # chord_bounds per pair: the link's end point in its base frame and the sagitta.
+        end = link_transform(geom.theta, geom.phi, model.spec)[:, :3, 3][link]  # (K, 3)
+        t = jnp.clip(jnp.sum(local * end, axis=-1) / jnp.sum(end * end, axis=-1), 0.0, 1.0)
+        to_chord = jnp.linalg.norm(local - t[:, None] * end, axis=-1)
+        _, versc, _ = _even_series(theta * theta / 4.0)
+        sagitta = model.spec.length * theta / 4.0 * versc
+        lower, upper = to_chord - sagitta - model.spec.radius, to_chord + sagitta
+        return jnp.where(outside, jnp.clip(raw, lower, upper), raw)
+
+    def state_pair_distances(self, arcs, frames, points, link):
+        """Batched pairs: the per-link quantities of all states are computed once and
+        gathered per pair in one ``take_along_axis``; same computation as ``pair_distances``."""
+        from ncedf.model import encode
+
+        model, spec = self.model, self.model.spec
+        theta_l, phi_l = arc_lengths_to_config(arcs, self.spec)  # (B..., M)
+        end_l = link_transform(theta_l, phi_l, spec)[..., :3, 3]  # (B..., M, 3)
+        _, versc, _ = _even_series(theta_l * theta_l / 4.0)
+        sagitta_l = spec.length * theta_l / 4.0 * versc
+        base = frames[..., :-1, :3, :].reshape(frames.shape[:-3] + (arcs.shape[-2], 12))  # rows of [R | t]
+        per_link = jnp.concatenate(
+            [base, end_l, theta_l[..., None], phi_l[..., None], sagitta_l[..., None]], axis=-1
+        )  # (B..., M, 18)
+        q = jnp.take_along_axis(per_link, link[..., None], axis=-2)  # (B..., K, 18)
+        batch = q.shape[:-1]
+        q = q.reshape(-1, 18)
+        pts = points.reshape(-1, 3)
+        v = [pts[:, j] - q[:, 4 * j + 3] for j in range(3)]
+        local = jnp.stack([q[:, i] * v[0] + q[:, 4 + i] * v[1] + q[:, 8 + i] * v[2] for i in range(3)], axis=-1)
+        end, theta, phi, sagitta = q[:, 12:15], q[:, 15], q[:, 16], q[:, 17]
+        raw = model.apply(encode(local, theta, phi, model.config.encoding))
+        outside = jnp.any((local < jnp.asarray(model.domain[0])) | (local > jnp.asarray(model.domain[1])), axis=-1)
+        t = jnp.clip(jnp.sum(local * end, axis=-1) / jnp.sum(end * end, axis=-1), 0.0, 1.0)
+        to_chord = jnp.linalg.norm(local - t[:, None] * end, axis=-1)
+        out = jnp.where(outside, jnp.clip(raw, to_chord - sagitta - spec.radius, to_chord + sagitta), raw)
+        return out.reshape(batch)
 
     def link_distances(self, points, arc):
         geom = self.prepare(arc)
