@@ -28,11 +28,17 @@ Selection rule (two stages, fixed sizes, so the program shape never changes):
    with the smallest ``LB`` over all links are evaluated by the representation.
    The state's minimum distance is the minimum over those K2 values.
 
-Layout: everything is computed per component (x, y, z as separate arrays) with
-the candidates on the last axis, for all N x H states at once; the (N, H, M,
-K1) bound array is the largest intermediate (N * H * M * K1 floats, 16 MB at
-the paper setting). Forward kinematics comes in as frames (the MPPI computes
-them once for the goal cost too).
+Cost on CPU (XLA): ``top_k``, ``argmin`` and sorts over many short rows cost
+microseconds per row, about as much as the network. So stage 2 uses neither:
+the K2 smallest bounds are found exactly by (a) the minimum of each group of 8
+candidates, fused with the bound computation (no (N, H, M, K1) array is
+stored), (b) the K2 groups with the smallest minima (the K2 smallest bounds
+lie in them), (c) the K2 smallest of those K2 * 8 bounds; (b) and (c) are K2
+passes of a plain ``min`` over keys that carry the position in their low
+mantissa bits (:func:`smallest`). Everything is per component (x, y, z as
+separate arrays) with the candidates on the last axis, for all N x H states at
+once. Forward kinematics comes in as frames (the MPPI computes them once for
+the goal cost too). Measured step times: ``bench/mppi_step.py``.
 
 Masked (padding) points get an infinite bound and distance, so they are never
 preferred over real points and never count.
@@ -161,12 +167,16 @@ def smallest(values: jnp.ndarray, k: int, offset: float = 0.0) -> jnp.ndarray:
     v = jnp.where(jnp.isnan(v), 1e30, v)
     bits = jax.lax.bitcast_convert_type(v, jnp.int32)
     keys = jax.lax.bitcast_convert_type((bits & ~low) | jnp.arange(n, dtype=jnp.int32), jnp.float32)
-    out, prev = [], None
-    for _ in range(k):
-        cur = keys if prev is None else jnp.where(keys > prev[..., None], keys, jnp.inf)
-        prev = jnp.min(cur, axis=-1)
-        out.append(prev)
-    pos = jax.lax.bitcast_convert_type(jnp.stack(out, axis=-1), jnp.int32) & low
+
+    def one_pass(prev, _):
+        cur = jnp.min(jnp.where(keys > prev[..., None], keys, jnp.inf), axis=-1)
+        return cur, cur
+
+    # A loop rather than k unrolled passes: the same work, a much smaller program to compile.
+    first = jnp.min(keys, axis=-1)
+    _, rest = jax.lax.scan(one_pass, first, None, length=k - 1)
+    out = jnp.concatenate([first[None], rest], axis=0)  # (k, ...)
+    pos = jax.lax.bitcast_convert_type(jnp.moveaxis(out, 0, -1), jnp.int32) & low
     return jnp.minimum(pos, n - 1)
 
 

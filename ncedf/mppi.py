@@ -23,7 +23,8 @@ Update: ``C~ = (C - min C) / (max C - min C)``, ``w = exp(-C~ / lambda)``,
 ``U <- (1 - alpha_u) U + alpha_u sum_j w_j u^j / sum_j w_j``; the first control is
 executed, the plan is shifted by one step (the last control repeated, or zero).
 
-The jitted core is pure: :meth:`MPPI.core_step`. :meth:`MPPI.step` validates its
+The jitted core is pure: :meth:`MPPI.core_step` (one jitted function per robot
+and configuration, shared by all controllers built with them). :meth:`MPPI.step` validates its
 inputs, pads the obstacle cloud to ``max_points`` with a mask, and calls it, so
 new states, goals and obstacle clouds (of any size up to the capacity) reuse one
 compiled program per goal kind.
@@ -32,6 +33,7 @@ compiled program per goal kind.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from typing import NamedTuple
 
@@ -187,6 +189,19 @@ def limit_to_state_bounds(arc: jnp.ndarray, u: jnp.ndarray, dt: float, spec: Rob
     return u * jnp.minimum(1.0, jnp.min(ratio, axis=-1, keepdims=True))
 
 
+@functools.lru_cache(maxsize=None)
+def _jitted_core(spec: RobotSpec, config: MPPIConfig):
+    """The jitted core step for (robot, settings), shared by every controller built with them.
+
+    The shape representation is an argument (a pytree), so controllers with the
+    same robot, settings and kind of representation reuse one compiled program
+    per goal kind instead of compiling their own.
+    """
+    proto = object.__new__(MPPI)
+    proto.spec, proto.config = spec, config
+    return jax.jit(proto._core_step)
+
+
 class MPPI:
     """MPPI for ``spec`` with a shape representation from :func:`ncedf.shapes.make_shape`.
 
@@ -208,7 +223,7 @@ class MPPI:
         self.spec = spec
         self.shape = shape
         self.config = config
-        self._core = jax.jit(self._core_step)
+        self._core = _jitted_core(spec, config)
 
     # ------------------------------------------------------------------ pure
     def init(self, key) -> MPPIState:
