@@ -91,7 +91,8 @@ def test_action_keeps_the_state_within_limits():
 
 
 def test_deterministic_and_no_recompilation(exact_mppi):
-    m = MPPI(SPEC, make_shape("spheres:2", SPEC), SMALL)  # a fresh compile cache
+    m = MPPI(SPEC, make_shape("spheres:2", SPEC), SMALL)
+    assert m._core is exact_mppi._core  # same robot and settings: one shared jitted core
     arc0 = np.asarray(SPEC.straight_state())
     goal = np.array([1.0, 0.5, 7.0])
     a1, s1, i1 = m.step(m.init(jax.random.PRNGKey(3)), arc0, goal, np.ones((10, 3)) * 3)
@@ -130,14 +131,24 @@ def test_broad_phase_matches_brute_force_on_exact_geometry():
     base = sample_arc_lengths(jax.random.PRNGKey(2), SPEC, (4,))
     u = project_controls(0.22 * jax.random.normal(jax.random.PRNGKey(5), (32, 5, 4, 3)), 0.3)
     arcs = base + 0.05 * jnp.cumsum(u, axis=1)
-    bf = jax.jit(lambda a: rollout_min_distances_brute(shape, a, pts, mask))(arcs)
-    bp = jax.jit(lambda a: rollout_min_distances_broad(shape, a, pts, mask, 96, 16, 2))(arcs)
-    # Independent truth: the closed-form distance of every state.
-    truth = jax.jit(jax.vmap(jax.vmap(lambda a: jnp.min(jnp.where(mask, robot_signed_distance(pts, a, SPEC), jnp.inf)))))(arcs)
+
+    @jax.jit  # one program for the three
+    def all_three(a):
+        bf = rollout_min_distances_brute(shape, a, pts, mask)
+        bp = rollout_min_distances_broad(shape, a, pts, mask, 96, 16, 2)
+        # Independent truth: the closed-form distance of every state.
+        truth = jax.vmap(jax.vmap(lambda x: jnp.min(jnp.where(mask, robot_signed_distance(pts, x, SPEC), jnp.inf))))(a)
+        return bf, bp, truth
+
+    bf, bp, truth = all_three(arcs)
     np.testing.assert_allclose(bf, truth, atol=1e-5)
     agree = np.mean(np.abs(np.asarray(bp - bf)) <= 1e-5)
     assert agree >= 0.99
     assert np.all(np.asarray(bp) >= np.asarray(bf) - 1e-5)  # a subset never finds a nearer point
+
+
+_clearance = jax.jit(lambda p, a: jnp.min(robot_signed_distance(p, a, SPEC)))
+_tip = jax.jit(lambda a: end_effector_pose(a, SPEC)[:3, 3])
 
 
 def _drive(m, arc, goal, points, steps, key=0):
@@ -150,8 +161,8 @@ def _drive(m, arc, goal, points, steps, key=0):
         arc = arc + np.asarray(action) * m.config.dt
         arc[:, 2] = 3 * SPEC.length - arc[:, 0] - arc[:, 1]  # remove float drift of the sum
         if pts is not None:
-            min_exact = min(min_exact, float(jnp.min(robot_signed_distance(jnp.asarray(pts), jnp.asarray(arc), SPEC))))
-        dist = float(np.linalg.norm(np.asarray(end_effector_pose(jnp.asarray(arc), SPEC)[:3, 3]) - goal))
+            min_exact = min(min_exact, float(_clearance(jnp.asarray(pts), jnp.asarray(arc))))
+        dist = float(np.linalg.norm(np.asarray(_tip(jnp.asarray(arc))) - goal))
         if dist < 0.2:
             break
     return dist, min_exact

@@ -1,5 +1,6 @@
 """Shape representations against independent truths (closed-form geometry, dense samples)."""
 
+import functools
 from pathlib import Path
 
 import jax
@@ -14,10 +15,15 @@ from ncedf.shapes import make_shape, sphere_cover_radius
 SPEC = RobotSpec(3)
 
 
+# Everything below runs jitted (one compile per entry point and input shape):
+# eager execution would compile every primitive of the geometry separately.
+
+
 def _arcs(seed, n):
     return sample_arc_lengths(jax.random.PRNGKey(seed), SPEC, (n, SPEC.n_links))
 
 
+@functools.partial(jax.jit, static_argnames="n")
 def _points_near(seed, arc, n=400, spread=0.8):
     """World points around the robot's surface (some inside, most outside)."""
     k1, k2 = jax.random.split(jax.random.PRNGKey(seed))
@@ -26,16 +32,21 @@ def _points_near(seed, arc, n=400, spread=0.8):
     return surf + spread * jax.random.normal(k2, surf.shape)
 
 
+@functools.partial(jax.jit, static_argnames="n_per_link")
 def _surface_dense(arc, n_per_link, seed=5):
     keys = jax.random.split(jax.random.PRNGKey(seed), SPEC.n_links)
     coords = jnp.stack([sample_surface_coords(k, n_per_link, 0.0, SPEC) for k in keys])
     return robot_surface_points(coords, arc, SPEC).reshape(-1, 3)
 
 
+_exact = jax.jit(lambda p, a: robot_signed_distance(p, a, SPEC))
+_distances = jax.jit(lambda shape, p, a: shape.distances(p, a))
+
+
 def test_spheres_cover_the_surface_and_never_exceed_exact():
     shape = make_shape("spheres:6", SPEC)
-    dist = jax.jit(shape.distances)
-    exact_fn = jax.jit(lambda p, a: robot_signed_distance(p, a, SPEC))
+    dist = functools.partial(_distances, shape)
+    exact_fn = _exact
     for i, arc in enumerate(_arcs(0, 3)):
         # Every surface point (lateral and end disks) lies in some sphere: distance <= 0.
         surf = _surface_dense(arc, 2000, seed=i)
@@ -60,11 +71,11 @@ def test_sphere_radius_is_tight_for_a_straight_link():
 def test_pointcloud_converges_to_exact():
     arc = _arcs(1, 1)[0]
     pts = _points_near(3, arc)
-    exact = robot_signed_distance(pts, arc, SPEC)
+    exact = _exact(pts, arc)
     outside = np.asarray(exact > 0.02)
     errors = []
     for n in (30, 300, 3000):
-        d = make_shape(f"pointcloud:{n}", SPEC, seed=1).distances(pts, arc)
+        d = _distances(make_shape(f"pointcloud:{n}", SPEC, seed=1), pts, arc)
         err = np.asarray(d - exact)[outside]
         assert err.min() >= -1e-5  # samples lie on the surface: never nearer than the surface
         errors.append(err.max())
@@ -75,7 +86,7 @@ def test_pointcloud_converges_to_exact():
 def test_exact_shape_matches_dense_surface_samples():
     arc = _arcs(2, 1)[0]
     pts = _points_near(4, arc, spread=1.0)
-    d = make_shape("exact", SPEC).distances(pts, arc)
+    d = _distances(make_shape("exact", SPEC), pts, arc)
     surf = _surface_dense(arc, 20000)
     brute = jnp.sqrt(jnp.min(jnp.sum((pts[:, None] - surf[None]) ** 2, -1), -1))
     outside = d > 0
@@ -89,11 +100,20 @@ def test_pair_and_batch_forms_agree(name):
     shape = make_shape(name, SPEC)
     arcs = _arcs(3, 2)
     pts = _points_near(5, arcs[0], n=30)
-    full = jax.vmap(lambda a: shape.link_distances(pts, a))(arcs)  # (B, M, P)
     link = jnp.arange(pts.shape[0]) % SPEC.n_links
-    pair = jax.vmap(lambda a: shape.pair_distances(shape.prepare(a), pts, link))(arcs)
+
+    @jax.jit
+    def forms(shape, pts, arcs):
+        full = jax.vmap(lambda a: shape.link_distances(pts, a))(arcs)  # (B, M, P)
+        pair = jax.vmap(lambda a: shape.pair_distances(shape.prepare(a), pts, link))(arcs)
+        batched = shape.state_pair_distances(arcs, jax.vmap(lambda a: shape.prepare(a).frames)(arcs),
+                                             jnp.broadcast_to(pts, (2,) + pts.shape), jnp.broadcast_to(link, (2,) + link.shape))
+        mins = jax.vmap(shape.min_distance, in_axes=(None, 0))(pts, arcs)
+        return full, pair, batched, mins
+
+    full, pair, batched, mins = forms(shape, pts, arcs)
     np.testing.assert_allclose(pair, full[:, link, jnp.arange(pts.shape[0])], atol=1e-5)
-    mins = jax.jit(jax.vmap(shape.min_distance, in_axes=(None, 0)))(pts, arcs)
+    np.testing.assert_allclose(batched, pair, atol=1e-5)
     np.testing.assert_allclose(mins, full.min(axis=(1, 2)), atol=1e-6)
 
 
@@ -101,8 +121,9 @@ def test_mask_and_empty_cloud():
     shape = make_shape("exact", SPEC)
     arc = SPEC.straight_state()
     pts = jnp.array([[0.0, 0.0, 1.0], [3.0, 0.0, 1.0]])  # the first is inside the robot
-    assert float(shape.min_distance(pts, arc, jnp.array([False, True]))) == pytest.approx(2.8, abs=1e-5)
-    assert float(shape.min_distance(pts, arc, jnp.array([False, False]))) == np.inf
+    min_distance = jax.jit(shape.min_distance)
+    assert float(min_distance(pts, arc, jnp.array([False, True]))) == pytest.approx(2.8, abs=1e-5)
+    assert float(min_distance(pts, arc, jnp.array([False, False]))) == np.inf
 
 
 @pytest.mark.parametrize("name", ["box", "pointcloud", "pointcloud:0", "pointcloud:x", "spheres:-1", "exact:3", 7])
@@ -126,12 +147,14 @@ def test_ncedf_agrees_with_exact_within_model_error():
     shape = make_shape("ncedf", SPEC, model=model)
     arcs = _arcs(7, 3)
     errs = []
+    robot_distance = jax.jit(lambda m, p, a: m.robot_distance(p, a))
     for i, arc in enumerate(arcs):
         pts = _points_near(10 + i, arc, spread=0.6)
-        exact = jnp.abs(robot_signed_distance(pts, arc, SPEC))
-        errs.append(np.abs(np.asarray(shape.distances(pts, arc) - exact)))
+        exact = jnp.abs(_exact(pts, arc))
+        d = _distances(shape, pts, arc)
+        errs.append(np.abs(np.asarray(d - exact)))
         # Composition through the chain equals the model's own robot-level function.
-        np.testing.assert_allclose(shape.distances(pts, arc), model.robot_distance(pts, arc), atol=1e-5)
+        np.testing.assert_allclose(d, robot_distance(model, pts, arc), atol=1e-5)
     err = np.concatenate(errs)
     # The paper's 4x16 network: MAE 0.017 m; allow a margin for our own training.
     assert err.mean() < 0.05
