@@ -11,15 +11,23 @@ then run on the first ``--ref-steps`` of the same inputs (state, plan, key), so
 both see identical samples. Reported per (links, representation):
 
   median / p95 step time of the broad phase over ``--steps`` steps after
-  compilation; its compile time (first call minus median); the brute-force median
-  over ``--ref-steps`` steps (fewer: it takes seconds per step); their ratio;
+  compilation; its compile time (ahead-of-time ``lower().compile()``); the
+  brute-force median over ``--ref-steps`` steps (>= 2; fewer than ``--steps``:
+  it takes seconds per step; printed as column n); their ratio;
   agreement: the fraction of the N x H rollout states whose min distance equals
   brute force (``exact``: bit-identical; ``1e-5``: within 1e-5 m), the largest
   difference, and the relative change of the executed control and of the whole
   updated plan, ``||a_bp - a_bf|| / ||a_bf||``.
 
 With more than 6 links the horizon is ``--horizon-long`` (release: 7) unless
-``--same-horizon``.
+``--same-horizon``. Representations: ncedf, spheres, exact, pointcloud:1000 by
+default; pointcloud:5000 only when named in ``--reps`` (2 brute-force steps).
+
+``--closed-loop`` (or ``--closed-loop-only``) also runs one short episode twice,
+broad phase on and off (same seed; 4 links; an obstacle ball between the tip
+and the goal; ``--cl-samples`` rollouts, ``--cl-steps`` steps) and prints the
+largest deviation of the arc-length trajectories and each run's minimum exact
+distance to the obstacle points.
 """
 
 from __future__ import annotations
@@ -80,6 +88,17 @@ def timed(fn, *args):
     return out, time.perf_counter() - t0
 
 
+def compiled_step(m, *args):
+    """AOT-compile ``m``'s jitted core for these argument shapes: (callable, compile seconds).
+
+    Compiling without running spares the brute-force path a warm-up step (it
+    takes seconds per step); both paths are timed after compilation.
+    """
+    t0 = time.perf_counter()
+    exe = m._core.lower(m.shape, *args).compile()
+    return (lambda *a: exe(m.shape, *a)), time.perf_counter() - t0
+
+
 def run(links, rep, args, model, points):
     spec = RobotSpec(links)
     horizon = args.horizon if (links <= 6 or args.same_horizon) else args.horizon_long
@@ -92,11 +111,13 @@ def run(links, rep, args, model, points):
 
     state = fast.init(jax.random.PRNGKey(args.seed))
     arc = jnp.asarray(spec.straight_state(), jnp.float32)
+    step, compile_s = compiled_step(fast, state, arc, goal, pts, mask)
+    ref_step, ref_compile = compiled_step(ref, state, arc, goal, pts, mask)
+    ref_steps = args.ref_steps_for(rep)
     inputs, outputs, times = [], [], []
-    _, first = timed(fast.core_step, state, arc, goal, pts, mask)
     for i in range(args.steps):
-        out, dt = timed(fast.core_step, state, arc, goal, pts, mask)
-        if i < args.ref_steps:
+        out, dt = timed(step, state, arc, goal, pts, mask)
+        if i < ref_steps:
             inputs.append((state, arc))
             outputs.append(out)
         times.append(dt)
@@ -106,9 +127,8 @@ def run(links, rep, args, model, points):
     p95 = float(np.percentile(times, 95))
 
     ref_times, same_exact, same_tol, max_diff, d_action, d_plan = [], [], [], [], [], []
-    _, ref_first = timed(ref.core_step, inputs[0][0], inputs[0][1], goal, pts, mask)
     for (st, a), (act_f, st_f, info_f) in zip(inputs, outputs):
-        (act_r, st_r, info_r), dt = timed(ref.core_step, st, a, goal, pts, mask)
+        (act_r, st_r, info_r), dt = timed(ref_step, st, a, goal, pts, mask)
         ref_times.append(dt)
         df = np.asarray(info_f.rollout_min_distance, np.float64)
         dr = np.asarray(info_r.rollout_min_distance, np.float64)
@@ -122,11 +142,64 @@ def run(links, rep, args, model, points):
         d_plan.append(np.linalg.norm(np.asarray(st_f.nominal) - np.asarray(st_r.nominal)) / max(npl, 1e-12))
     ref_med = float(np.median(ref_times))
     return dict(
-        links=links, rep=rep, H=horizon, med=med, p95=p95, compile=first - med,
-        ref_med=ref_med, ref_n=len(ref_times), ref_compile=ref_first - ref_med, ratio=ref_med / med,
+        links=links, rep=rep, H=horizon, med=med, p95=p95, compile=compile_s,
+        ref_med=ref_med, ref_n=len(ref_times), ref_compile=ref_compile, ratio=ref_med / med,
         same_exact=float(np.mean(same_exact)), same_tol=float(np.mean(same_tol)), max_diff=float(np.max(max_diff)),
         d_action=float(np.max(d_action)), d_plan=float(np.max(d_plan)),
     )
+
+
+def closed_loop(args, model):
+    """The same episode with broad_phase=True and False: trajectory deviation and exact clearance.
+
+    4 links from the straight state; the goal is the tip of a random valid state;
+    ``--cl-points`` points on a ball of radius 0.4 m halfway between the tip and
+    the goal. Both controllers start from the same key, so they draw identical
+    samples as long as their states agree.
+    """
+    from ncedf.geometry import robot_signed_distance
+    from ncedf.robot import end_effector_pose, sample_arc_lengths
+
+    spec = RobotSpec(4)
+    shape = build_shape("ncedf", spec, model)
+    goal_arc = sample_arc_lengths(jax.random.PRNGKey(3), spec, (4,))
+    goal = np.asarray(end_effector_pose(goal_arc, spec)[:3, 3], np.float32)
+    start = np.asarray(end_effector_pose(spec.straight_state(), spec)[:3, 3])
+    rng = np.random.default_rng(args.seed)
+    v = rng.normal(size=(args.cl_points, 3))
+    cloud = (0.5 * (start + goal) + 0.4 * v / np.linalg.norm(v, axis=1, keepdims=True)).astype(np.float32)
+    exact = jax.jit(lambda a: jnp.min(robot_signed_distance(jnp.asarray(cloud), a, spec)))
+    runs = {}
+    for bp in (True, False):
+        cfg = MPPIConfig(samples=args.cl_samples, horizon=args.horizon, max_points=len(cloud), broad_phase=bp,
+                         k1=args.k1, k2=args.k2)
+        m = MPPI(spec, shape, cfg)
+        pts, mask = m.pad_points(cloud)
+        st = m.init(jax.random.PRNGKey(args.seed))
+        arc = np.asarray(spec.straight_state(), np.float32)
+        traj, clearance, times = [arc.copy()], [], []
+        for _ in range(args.cl_steps):
+            (action, st, _), dt = timed(m.core_step, st, jnp.asarray(arc), jnp.asarray(goal), pts, mask)
+            times.append(dt)
+            arc = arc + np.asarray(action) * cfg.dt
+            arc[:, 2] = 3 * spec.length - arc[:, 0] - arc[:, 1]  # remove float drift of the sum
+            traj.append(arc.copy())
+            clearance.append(float(exact(jnp.asarray(arc))))
+        tip = np.asarray(end_effector_pose(jnp.asarray(arc), spec)[:3, 3])
+        runs[bp] = dict(traj=np.stack(traj), clear=min(clearance), goal=float(np.linalg.norm(tip - goal)),
+                        med=float(np.median(times[1:])))
+    dev = np.abs(runs[True]["traj"] - runs[False]["traj"]).max(axis=(1, 2))
+    print(
+        f"closed loop: 4 links, {args.cl_samples} samples, H {args.horizon}, {args.cl_steps} steps, "
+        f"{args.cl_points} points on a 0.4 m ball between tip and goal, seed {args.seed}"
+    )
+    for bp, name in ((True, "broad phase"), (False, "brute force")):
+        r = runs[bp]
+        print(f"  {name:<12} min exact distance {r['clear']:.4f} m, final goal distance {r['goal']:.3f} m, "
+              f"median step {1e3 * r['med']:.0f} ms")
+    first = int(np.argmax(dev > 1e-6)) if np.any(dev > 1e-6) else None
+    print(f"  max |arc_bp - arc_bf| over the episode {dev.max():.2e} m (first step above 1e-6 m: {first})")
+    sys.stdout.flush()
 
 
 HEADER = (
@@ -143,6 +216,9 @@ def fmt(r):
     )
 
 
+DEFAULT_REPS = "ncedf,spheres,exact,pointcloud:1000"
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--links", type=int, nargs="+", default=[4, 5, 7])
@@ -152,23 +228,32 @@ def main(argv=None):
     p.add_argument("--same-horizon", action="store_true")
     p.add_argument("--points", type=int, default=500)
     p.add_argument("--steps", type=int, default=20, help="timed broad-phase steps after compilation")
-    p.add_argument("--ref-steps", type=int, default=3, help="timed brute-force steps (same inputs)")
-    p.add_argument("--reps", default="ncedf,spheres,pointcloud:1000,pointcloud:5000,exact")
+    p.add_argument("--ref-steps", type=int, default=2, help="timed brute-force steps (same inputs), >= 2")
+    p.add_argument("--reps", default=DEFAULT_REPS,
+                   help=f"default {DEFAULT_REPS}; add pointcloud:5000 explicitly (its brute force takes minutes per step)")
     p.add_argument("--k1", type=int, default=MPPIConfig.k1)
     p.add_argument("--k2", type=int, default=MPPIConfig.k2)
     p.add_argument("--model", default=None, help="N-CEDF weights (default: the shipped model)")
     p.add_argument("--random-model", action="store_true", help="untrained 4x16 network (timing only)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--quick", action="store_true", help="smoke run: 4 links, 64 samples, H 8, few steps")
+    p.add_argument("--closed-loop", action="store_true", help="also run the closed-loop equivalence check")
+    p.add_argument("--closed-loop-only", action="store_true", help="only the closed-loop check")
+    p.add_argument("--cl-samples", type=int, default=256)
+    p.add_argument("--cl-points", type=int, default=200)
+    p.add_argument("--cl-steps", type=int, default=60)
     args = p.parse_args(argv)
     if args.quick:
         args.links, args.samples, args.horizon, args.steps, args.ref_steps = [4], 64, 8, 3, 2
         args.reps = "ncedf,spheres,pointcloud:1000,exact"
-    args.ref_steps = max(1, min(args.ref_steps, args.steps))
+        args.cl_samples, args.cl_points, args.cl_steps = 64, 40, 10
+    args.ref_steps = max(2, min(args.ref_steps, args.steps))
+    # pointcloud:5000's brute force takes minutes per step: 2 reference steps at most.
+    args.ref_steps_for = lambda rep: 2 if rep.startswith("pointcloud:") and int(rep.split(":")[1]) > 2000 else args.ref_steps
     reps = [r.strip() for r in args.reps.split(",") if r.strip()]
 
     model = None
-    if "ncedf" in reps:
+    if "ncedf" in reps or args.closed_loop or args.closed_loop_only:
         from ncedf import model as model_mod
 
         if args.random_model:
@@ -177,18 +262,28 @@ def main(argv=None):
             print("NOTE: untrained random 4x16 network: timings only, agreement not meaningful")
         else:
             model = model_mod.load_model(args.model)
+    if args.closed_loop_only:
+        closed_loop(args, model)
+        return
     points = cluttered_points(args.points, args.seed)
+    t_start = time.perf_counter()
     print(
         f"jax {jax.__version__} on {jax.devices()[0].platform}; samples {args.samples}, points {len(points)}, "
-        f"k1 {args.k1}, k2 {args.k2}; broad phase timed over {args.steps} steps, brute force over "
-        f"{args.ref_steps} steps on the same inputs (after a warm-up call each)"
+        f"k1 {args.k1}, k2 {args.k2}, capsule segments {MPPIConfig.capsule_segments}; broad phase timed over "
+        f"{args.steps} steps, brute force over the first {args.ref_steps} of them on the same inputs "
+        f"(column n; both AOT-compiled first, no warm-up step)"
     )
+    if any(r.startswith("pointcloud:") and int(r.split(":")[1]) > 2000 for r in reps):
+        print("NOTE: pointcloud with > 2000 points: brute force over 2 steps only (minutes per step)")
     print(HEADER)
     sys.stdout.flush()
     for links in args.links:
         for rep in reps:
             print(fmt(run(links, rep, args, model, points)))
             sys.stdout.flush()
+    print(f"total bench time {time.perf_counter() - t_start:.0f} s")
+    if args.closed_loop:
+        closed_loop(args, model)
 
 
 if __name__ == "__main__":
