@@ -30,6 +30,7 @@ Representations, chosen by name with :func:`make_shape`:
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from typing import NamedTuple
 
@@ -394,10 +395,16 @@ def make_shape(
             raise ValueError("representation 'pointcloud' needs a point count, e.g. 'pointcloud:1000'")
         total = _parse_count(name, arg)
         per_link = -(-total // spec.n_links)
-        keys = jax.random.split(jax.random.PRNGKey(seed), spec.n_links)
-        coords = jnp.stack([sample_surface_coords(k, per_link, 0.0, spec) for k in keys])
-        return PointCloudShape(coords=coords, spec=spec, name=f"pointcloud:{total}")
+        return PointCloudShape(coords=_surface_coords(seed, per_link, spec), spec=spec, name=f"pointcloud:{total}")
     raise ValueError(f"unknown representation {name!r}; choose one of {', '.join(REPRESENTATIONS)}")
+
+
+@functools.partial(jax.jit, static_argnums=(1, 2))
+def _surface_coords(seed, per_link: int, spec: RobotSpec):
+    """Fixed surface coordinates of a point-cloud shape, (M, per_link, 3); jitted (eagerly,
+    the Newton iterations of the sampler compile op by op for every new size)."""
+    keys = jax.random.split(jax.random.PRNGKey(seed), spec.n_links)
+    return jnp.stack([sample_surface_coords(keys[i], per_link, 0.0, spec) for i in range(spec.n_links)])
 
 
 def surface_count(shape) -> int:

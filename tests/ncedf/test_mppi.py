@@ -113,7 +113,7 @@ def test_deterministic_and_no_recompilation(exact_mppi):
     assert 1.0 <= float(info.ess) <= SMALL.samples
     # A pose goal is the second (and last) variant.
     m.step(st, arc0, np.eye(4), None)
-    m.step(st, arc0, np.asarray(end_effector_pose(arc, SPEC)), None)
+    m.step(st, arc0, np.asarray(_pose(arc)), None)
     assert m._core._cache_size() == 2
 
 
@@ -148,7 +148,11 @@ def test_broad_phase_matches_brute_force_on_exact_geometry():
 
 
 _clearance = jax.jit(lambda p, a: jnp.min(robot_signed_distance(p, a, SPEC)))
-_tip = jax.jit(lambda a: end_effector_pose(a, SPEC)[:3, 3])
+_pose = jax.jit(lambda a: end_effector_pose(a, SPEC))  # eager, FK would compile op by op
+
+
+def _tip(arc):
+    return _pose(jnp.asarray(arc))[:3, 3]
 
 
 def _drive(m, arc, goal, points, steps, key=0):
@@ -170,7 +174,7 @@ def _drive(m, arc, goal, points, steps, key=0):
 
 def test_reaches_a_reachable_goal_without_obstacles():
     goal_arc = sample_arc_lengths(jax.random.PRNGKey(3), SPEC, (4,))
-    goal = np.asarray(end_effector_pose(goal_arc, SPEC)[:3, 3])
+    goal = np.asarray(_tip(goal_arc))
     m = MPPI(SPEC, make_shape("spheres:2", SPEC), SMALL)
     dist, _ = _drive(m, SPEC.straight_state(), goal, None, steps=120)
     assert dist < 0.2
@@ -180,8 +184,8 @@ def test_avoids_obstacles_between_robot_and_goal():
     from ncedf.model import load_model
 
     goal_arc = sample_arc_lengths(jax.random.PRNGKey(3), SPEC, (4,))
-    goal = np.asarray(end_effector_pose(goal_arc, SPEC)[:3, 3])
-    start = np.asarray(end_effector_pose(SPEC.straight_state(), SPEC)[:3, 3])
+    goal = np.asarray(_tip(goal_arc))
+    start = np.asarray(_tip(SPEC.straight_state()))
     # A ball of points (radius 0.25) halfway along the straight line from the tip to the goal.
     rng = np.random.default_rng(0)
     v = rng.normal(size=(40, 3))
