@@ -154,18 +154,17 @@ def _even_series(theta_sq: jnp.ndarray):
     return sinc, versc, cos
 
 
-def link_transform_from_bending(ab: jnp.ndarray, length: float) -> jnp.ndarray:
-    """Homogeneous transform from the base to the end of a PCC link.
+def _link_components(ab: jnp.ndarray, length: float):
+    """Rotation (3 x 3 nested lists) and translation (3 list) of link transforms.
 
     The rotation is ``Rz(phi) Ry(theta) Rz(-phi)``: a rotation by theta about
     the axis ``(-sin phi, cos phi, 0)``. The end point is
-    ``L ((1 - cos t)/t cos phi, (1 - cos t)/t sin phi, sin t / t)``.
+    ``L ((1 - cos t)/t cos phi, (1 - cos t)/t sin phi, sin t / t)``. Each entry
+    is an array of shape (...), so that chaining transforms is element-wise.
 
     Args:
       ab: (..., 2) bending vector ``theta (cos phi, sin phi)``.
       length: backbone length L, m.
-    Returns:
-      (..., 4, 4) transforms.
     """
     a, b = ab[..., 0], ab[..., 1]
     sinc, versc, cos = _even_series(a * a + b * b)
@@ -175,15 +174,29 @@ def link_transform_from_bending(ab: jnp.ndarray, length: float) -> jnp.ndarray:
     r02 = sinc * a
     r11 = 1.0 - versc * b * b
     r12 = sinc * b
-    zero = jnp.zeros_like(a)
-    one = jnp.ones_like(a)
-    rows = [
-        [r00, r01, r02, length * versc * a],
-        [r01, r11, r12, length * versc * b],
-        [-r02, -r12, cos, length * sinc],
-        [zero, zero, zero, one],
-    ]
+    rot = [[r00, r01, r02], [r01, r11, r12], [-r02, -r12, cos]]
+    trans = [length * versc * a, length * versc * b, length * sinc]
+    return rot, trans
+
+
+def _pack(rot, trans) -> jnp.ndarray:
+    """Nested per-component rotation and translation -> (..., 4, 4) transforms."""
+    zero = jnp.zeros_like(trans[0])
+    one = jnp.ones_like(trans[0])
+    rows = [[rot[i][0], rot[i][1], rot[i][2], trans[i]] for i in range(3)] + [[zero, zero, zero, one]]
     return jnp.stack([jnp.stack(row, axis=-1) for row in rows], axis=-2)
+
+
+def link_transform_from_bending(ab: jnp.ndarray, length: float) -> jnp.ndarray:
+    """Homogeneous transform from the base to the end of a PCC link.
+
+    Args:
+      ab: (..., 2) bending vector ``theta (cos phi, sin phi)``.
+      length: backbone length L, m.
+    Returns:
+      (..., 4, 4) transforms (see ``_link_components``).
+    """
+    return _pack(*_link_components(ab, length))
 
 
 def link_transform(theta: jnp.ndarray, phi: jnp.ndarray, spec: RobotSpec) -> jnp.ndarray:
@@ -198,24 +211,6 @@ def link_transform(theta: jnp.ndarray, phi: jnp.ndarray, spec: RobotSpec) -> jnp
     phi = jnp.asarray(phi)
     ab = jnp.stack([theta * jnp.cos(phi), theta * jnp.sin(phi)], axis=-1)
     return link_transform_from_bending(ab, spec.length)
-
-
-def _link_components(ab: jnp.ndarray, length: float):
-    """Rotation (3 x 3 nested lists) and translation (3 list) of every link transform, per component.
-
-    The same expressions as :func:`link_transform_from_bending`, kept as
-    separate arrays of shape (...) so that chaining them is element-wise.
-    """
-    a, b = ab[..., 0], ab[..., 1]
-    sinc, versc, cos = _even_series(a * a + b * b)
-    r00 = 1.0 - versc * a * a
-    r01 = -versc * a * b
-    r02 = sinc * a
-    r11 = 1.0 - versc * b * b
-    r12 = sinc * b
-    rot = [[r00, r01, r02], [r01, r11, r12], [-r02, -r12, cos]]
-    trans = [length * versc * a, length * versc * b, length * sinc]
-    return rot, trans
 
 
 def link_base_frames(arc: jnp.ndarray, spec: RobotSpec) -> jnp.ndarray:
@@ -239,19 +234,13 @@ def link_base_frames(arc: jnp.ndarray, spec: RobotSpec) -> jnp.ndarray:
     one = jnp.ones(batch, ab.dtype)
     rot = [[one if i == j else zero for j in range(3)] for i in range(3)]
     trans = [zero, zero, zero]
-    frames = []
-
-    def pack(rot, trans):
-        rows = [[rot[i][0], rot[i][1], rot[i][2], trans[i]] for i in range(3)] + [[zero, zero, zero, one]]
-        return jnp.stack([jnp.stack(row, axis=-1) for row in rows], axis=-2)
-
-    frames.append(pack(rot, trans))
+    frames = [_pack(rot, trans)]
     for m in range(ab.shape[-2]):
         lr = [[x[..., m] for x in row] for row in lrot]
         lt = [x[..., m] for x in ltrans]
         trans = [rot[i][0] * lt[0] + rot[i][1] * lt[1] + rot[i][2] * lt[2] + trans[i] for i in range(3)]
         rot = [[rot[i][0] * lr[0][j] + rot[i][1] * lr[1][j] + rot[i][2] * lr[2][j] for j in range(3)] for i in range(3)]
-        frames.append(pack(rot, trans))
+        frames.append(_pack(rot, trans))
     return jnp.stack(frames, axis=-3)
 
 
