@@ -55,7 +55,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from ncedf.robot import RobotSpec, _even_series, bending_vector, forward_kinematics
+from ncedf.robot import RobotSpec, _even_series, arc_sagitta, bending_vector, forward_kinematics
 
 
 def capsule_points(arcs: jnp.ndarray, frames: jnp.ndarray, spec: RobotSpec, segments: int):
@@ -80,12 +80,8 @@ def capsule_points(arcs: jnp.ndarray, frames: jnp.ndarray, spec: RobotSpec, segm
         base[..., i, 0:1] * local[0] + base[..., i, 1:2] * local[1] + base[..., i, 2:3] * local[2] + base[..., i, 3:4]
         for i in range(3)
     )
-    theta_sq = ab[..., 0] * ab[..., 0] + ab[..., 1] * ab[..., 1]
-    half_sq = theta_sq / (2.0 * segments) ** 2  # (half the sub-arc angle)^2
-    _, versc_half, _ = _even_series(half_sq)
-    # sagitta = rho (1 - cos(alpha / 2)) = (L / S) (alpha / 2)^2 versc / alpha = (L / S) (alpha / 4) versc
-    sagitta = (spec.length / segments) * (jnp.sqrt(half_sq) / 2.0) * versc_half
-    return xyz, sagitta + spec.radius
+    theta = jnp.sqrt(ab[..., 0] * ab[..., 0] + ab[..., 1] * ab[..., 1])
+    return xyz, arc_sagitta(theta / segments, spec.length / segments) + spec.radius
 
 
 def link_capsules(arc: jnp.ndarray, spec: RobotSpec, segments: int, frames=None):

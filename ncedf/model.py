@@ -34,7 +34,7 @@ import jax.numpy as jnp
 
 from ncedf.data import BOX_MAX, BOX_MIN
 from ncedf.geometry import _world_to_link_points, to_bending_plane
-from ncedf.robot import RobotSpec, _even_series, arc_lengths_to_config, link_transform
+from ncedf.robot import RobotSpec, arc_lengths_to_config, arc_sagitta, link_transform
 
 ENCODINGS = ("paper", "bending-plane")
 OUTPUTS = ("distance", "signed-abs")
@@ -108,6 +108,13 @@ def encode(points: jnp.ndarray, theta, phi, encoding: str) -> jnp.ndarray:
     return jnp.concatenate([theta, to_bending_plane(points, phi)], axis=-1)
 
 
+def chord_bounds_from_end(points: jnp.ndarray, end: jnp.ndarray, sagitta, radius: float):
+    """``chord_bounds`` given the link's end point ``end`` (3,) or (P, 3) and sagitta, (P,) each."""
+    t = jnp.clip(jnp.sum(points * end, axis=-1) / jnp.sum(end * end, axis=-1), 0.0, 1.0)
+    to_chord = jnp.linalg.norm(points - t[..., None] * end, axis=-1)
+    return to_chord - sagitta - radius, to_chord + sagitta
+
+
 def chord_bounds(points: jnp.ndarray, theta, phi, spec: RobotSpec) -> tuple[jnp.ndarray, jnp.ndarray]:
     """Bounds of the distance from points outside a link to its surface, from its chord.
 
@@ -122,11 +129,7 @@ def chord_bounds(points: jnp.ndarray, theta, phi, spec: RobotSpec) -> tuple[jnp.
       lower (P,), upper (P,), m.
     """
     end = link_transform(theta, phi, spec)[:3, 3]
-    t = jnp.clip(points @ end / (end @ end), 0.0, 1.0)
-    to_chord = jnp.linalg.norm(points - t[:, None] * end, axis=-1)
-    _, versc, _ = _even_series(theta * theta / 4.0)
-    sagitta = spec.length * theta / 4.0 * versc
-    return to_chord - sagitta - spec.radius, to_chord + sagitta
+    return chord_bounds_from_end(points, end, arc_sagitta(theta, spec.length), spec.radius)
 
 
 def init_params(key, config: ModelConfig):
@@ -166,9 +169,22 @@ class NCEDF:
         Returns:
           (P,) distances, m; beyond the domain, the bound from its nearest point.
         """
+        end = link_transform(theta, phi, self.spec)[:3, 3]
+        return self.local_distance(points, theta, phi, end, arc_sagitta(theta, self.spec.length))
+
+    def local_distance(self, points: jnp.ndarray, theta, phi, end, sagitta) -> jnp.ndarray:
+        """``link_distance`` with the link's end point and sagitta already known.
+
+        Args:
+          points: (P, 3) link-frame points, m.
+          theta, phi: scalars or (P,), rad (one link configuration per point).
+          end: (3,) or (P, 3) link end points in the link frame, m.  sagitta: scalar or (P,), m.
+        Returns:
+          (P,) the network's distance, clamped to the chord bounds outside the domain, m.
+        """
         raw = self.apply(encode(points, theta, phi, self.config.encoding))
         outside = jnp.any((points < jnp.asarray(self.domain[0])) | (points > jnp.asarray(self.domain[1])), axis=-1)
-        lower, upper = chord_bounds(points, theta, phi, self.spec)
+        lower, upper = chord_bounds_from_end(points, end, sagitta, self.spec.radius)
         return jnp.where(outside, jnp.clip(raw, lower, upper), raw)
 
     def robot_link_distances(self, points: jnp.ndarray, arc: jnp.ndarray) -> jnp.ndarray:

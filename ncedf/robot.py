@@ -199,6 +199,19 @@ def link_transform_from_bending(ab: jnp.ndarray, length: float) -> jnp.ndarray:
     return _pack(*_link_components(ab, length))
 
 
+def arc_sagitta(theta: jnp.ndarray, length) -> jnp.ndarray:
+    """Largest distance between a circular arc and its chord, m.
+
+    ``rho (1 - cos(theta / 2))`` with ``rho = length / theta``, written as
+    ``length theta / 4 * versc(theta / 2)`` so it is smooth at theta = 0.
+
+    Args:
+      theta: (...,) arc angle, rad.  length: (...,) or scalar arc length, m.
+    """
+    _, versc, _ = _even_series(theta * theta / 4.0)
+    return length * theta / 4.0 * versc
+
+
 def link_transform(theta: jnp.ndarray, phi: jnp.ndarray, spec: RobotSpec) -> jnp.ndarray:
     """Transform from the base to the end of a link with configuration (theta, phi).
 

@@ -45,7 +45,7 @@ from ncedf.geometry import (
     surface_points_bending_plane,
     to_bending_plane,
 )
-from ncedf.robot import RobotSpec, _even_series, arc_lengths_to_config, forward_kinematics, link_transform
+from ncedf.robot import RobotSpec, arc_lengths_to_config, arc_sagitta, forward_kinematics, link_transform
 
 DEFAULT_SPHERES_PER_LINK = 8
 
@@ -175,32 +175,19 @@ class NCEDFShape(_Base):
         for per-pair (theta, phi) so the network runs as one (K, D) batch
         instead of K batched matrix-vector products.
         """
-        from ncedf.model import encode
-
         model = self.model
         local = _to_local(geom.frames, link, points)  # (K, 3)
         theta, phi = geom.theta[link], geom.phi[link]
-        raw = model.apply(encode(local, theta, phi, model.config.encoding))
-        outside = jnp.any((local < jnp.asarray(model.domain[0])) | (local > jnp.asarray(model.domain[1])), axis=-1)
-        # chord_bounds per pair: the link's end point in its base frame and the sagitta.
         end = link_transform(geom.theta, geom.phi, model.spec)[:, :3, 3][link]  # (K, 3)
-        t = jnp.clip(jnp.sum(local * end, axis=-1) / jnp.sum(end * end, axis=-1), 0.0, 1.0)
-        to_chord = jnp.linalg.norm(local - t[:, None] * end, axis=-1)
-        _, versc, _ = _even_series(theta * theta / 4.0)
-        sagitta = model.spec.length * theta / 4.0 * versc
-        lower, upper = to_chord - sagitta - model.spec.radius, to_chord + sagitta
-        return jnp.where(outside, jnp.clip(raw, lower, upper), raw)
+        return model.local_distance(local, theta, phi, end, arc_sagitta(theta, model.spec.length))
 
     def state_pair_distances(self, arcs, frames, points, link):
         """Batched pairs: the per-link quantities of all states are computed once and
         gathered per pair in one ``take_along_axis``; same computation as ``pair_distances``."""
-        from ncedf.model import encode
-
         model, spec = self.model, self.model.spec
         theta_l, phi_l = arc_lengths_to_config(arcs, self.spec)  # (B..., M)
         end_l = link_transform(theta_l, phi_l, spec)[..., :3, 3]  # (B..., M, 3)
-        _, versc, _ = _even_series(theta_l * theta_l / 4.0)
-        sagitta_l = spec.length * theta_l / 4.0 * versc
+        sagitta_l = arc_sagitta(theta_l, spec.length)
         base = frames[..., :-1, :3, :].reshape(frames.shape[:-3] + (arcs.shape[-2], 12))  # rows of [R | t]
         per_link = jnp.concatenate(
             [base, end_l, theta_l[..., None], phi_l[..., None], sagitta_l[..., None]], axis=-1
@@ -212,12 +199,7 @@ class NCEDFShape(_Base):
         v = [pts[:, j] - q[:, 4 * j + 3] for j in range(3)]
         local = jnp.stack([q[:, i] * v[0] + q[:, 4 + i] * v[1] + q[:, 8 + i] * v[2] for i in range(3)], axis=-1)
         end, theta, phi, sagitta = q[:, 12:15], q[:, 15], q[:, 16], q[:, 17]
-        raw = model.apply(encode(local, theta, phi, model.config.encoding))
-        outside = jnp.any((local < jnp.asarray(model.domain[0])) | (local > jnp.asarray(model.domain[1])), axis=-1)
-        t = jnp.clip(jnp.sum(local * end, axis=-1) / jnp.sum(end * end, axis=-1), 0.0, 1.0)
-        to_chord = jnp.linalg.norm(local - t[:, None] * end, axis=-1)
-        out = jnp.where(outside, jnp.clip(raw, to_chord - sagitta - spec.radius, to_chord + sagitta), raw)
-        return out.reshape(batch)
+        return model.local_distance(local, theta, phi, end, sagitta).reshape(batch)
 
     def link_distances(self, points, arc):
         geom = self.prepare(arc)
