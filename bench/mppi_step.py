@@ -40,8 +40,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ncedf.mppi import MPPI, MPPIConfig
-from ncedf.robot import RobotSpec
+from ncedf.mppi import MPPI, MPPIConfig, mppi_step
+from ncedf.robot import RobotSpec, project_state
 from ncedf.shapes import make_shape
 
 BOXES = (((2.5, 0.0, 5.0), (1.0, 4.8, 3.0)), ((2.5, 0.0, 0.0), (1.0, 5.0, 2.0)), ((5.3, 0.0, 2.0), (2.0, 5.0, 1.0)))
@@ -89,13 +89,14 @@ def timed(fn, *args):
 
 
 def compiled_step(m, *args):
-    """AOT-compile ``m``'s jitted core for these argument shapes: (callable, compile seconds).
+    """AOT-compile ``ncedf.mppi.mppi_step`` for ``m``'s robot, settings and these argument shapes:
+    (callable, compile seconds).
 
     Compiling without running spares the brute-force path a warm-up step (it
     takes seconds per step); both paths are timed after compilation.
     """
     t0 = time.perf_counter()
-    exe = m._core.lower(m.shape, *args).compile()
+    exe = mppi_step.lower(m.spec, m.config, m.shape, *args).compile()
     return (lambda *a: exe(m.shape, *a)), time.perf_counter() - t0
 
 
@@ -179,10 +180,9 @@ def closed_loop(args, model):
         arc = np.asarray(spec.straight_state(), np.float32)
         traj, clearance, times = [arc.copy()], [], []
         for _ in range(args.cl_steps):
-            (action, st, _), dt = timed(m.core_step, st, jnp.asarray(arc), jnp.asarray(goal), pts, mask)
+            (action, st, _), dt = timed(mppi_step, spec, cfg, shape, st, jnp.asarray(arc), jnp.asarray(goal), pts, mask)
             times.append(dt)
-            arc = arc + np.asarray(action) * cfg.dt
-            arc[:, 2] = 3 * spec.length - arc[:, 0] - arc[:, 1]  # remove float drift of the sum
+            arc = np.asarray(project_state(arc + np.asarray(action) * cfg.dt, spec))  # remove float drift of the sum
             traj.append(arc.copy())
             clearance.append(float(exact(jnp.asarray(arc))))
         tip = np.asarray(end_effector_pose(jnp.asarray(arc), spec)[:3, 3])

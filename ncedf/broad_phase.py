@@ -55,7 +55,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from ncedf.robot import RobotSpec, _even_series, arc_sagitta, bending_vector, forward_kinematics
+from ncedf.robot import RobotSpec, arc_sagitta, bending_vector, even_series, forward_kinematics
 
 
 def capsule_points(arcs: jnp.ndarray, frames: jnp.ndarray, spec: RobotSpec, segments: int):
@@ -72,7 +72,7 @@ def capsule_points(arcs: jnp.ndarray, frames: jnp.ndarray, spec: RobotSpec, segm
     ab = bending_vector(arcs, spec)  # (..., M, 2)
     u = jnp.linspace(0.0, 1.0, segments + 1, dtype=ab.dtype)  # (S + 1,)
     ta, tb = ab[..., 0:1] * u, ab[..., 1:2] * u  # (..., M, S + 1) bending vector of the partial arc
-    sinc, versc, _ = _even_series(ta * ta + tb * tb)
+    sinc, versc, _ = even_series(ta * ta + tb * tb)
     length = spec.length * u
     local = (length * versc * ta, length * versc * tb, length * sinc)
     base = frames[..., :-1, :, :]  # (..., M, 4, 4)
@@ -84,22 +84,6 @@ def capsule_points(arcs: jnp.ndarray, frames: jnp.ndarray, spec: RobotSpec, segm
     return xyz, arc_sagitta(theta / segments, spec.length / segments) + spec.radius
 
 
-def link_capsules(arc: jnp.ndarray, spec: RobotSpec, segments: int, frames=None):
-    """Bounding capsules of every link of one configuration.
-
-    Args:
-      arc: (M, 3) arc lengths, m.  segments: sub-arcs per link, S >= 1.
-      frames: (M + 1, 4, 4) forward kinematics of ``arc`` if already computed.
-    Returns:
-      a, b: (M, S, 3) world end points of each sub-arc's chord, m;
-      radius: (M,) capsule radius (sub-arc sagitta + r), m.
-    """
-    frames = forward_kinematics(arc, spec) if frames is None else frames
-    xyz, radius = capsule_points(arc, frames, spec, segments)
-    pts = jnp.stack(xyz, axis=-1)  # (M, S + 1, 3)
-    return pts[:, :-1], pts[:, 1:], radius
-
-
 def _segment_distance_c(px, py, pz, ax, ay, az, bx, by, bz):
     """Distance from points to segments [a, b], per component (broadcasting)."""
     ux, uy, uz = bx - ax, by - ay, bz - az
@@ -108,11 +92,6 @@ def _segment_distance_c(px, py, pz, ax, ay, az, bx, by, bz):
     t = jnp.clip((vx * ux + vy * uy + vz * uz) / uu, 0.0, 1.0)
     dx, dy, dz = vx - t * ux, vy - t * uy, vz - t * uz
     return jnp.sqrt(dx * dx + dy * dy + dz * dz)
-
-
-def segment_distance(p: jnp.ndarray, a: jnp.ndarray, b: jnp.ndarray) -> jnp.ndarray:
-    """Distance from points ``p`` to segments ``[a, b]`` (broadcasting, last axis 3)."""
-    return _segment_distance_c(p[..., 0], p[..., 1], p[..., 2], a[..., 0], a[..., 1], a[..., 2], b[..., 0], b[..., 1], b[..., 2])
 
 
 def _capsule_distance(p, xyz, segments: int):

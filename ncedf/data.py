@@ -129,7 +129,7 @@ def settings_hash(config, spec: RobotSpec) -> str:
     payload = {
         "kind": type(config).__name__,
         "config": dataclasses.asdict(config),
-        "spec": {k: v for k, v in dataclasses.asdict(spec).items() if k != "n_links"},
+        "spec": spec.link_geometry(),
         "version": 2,
     }
     return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()[:16]

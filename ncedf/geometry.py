@@ -21,11 +21,19 @@ import trimesh
 
 from ncedf.robot import (
     RobotSpec,
-    _even_series,
-    _safe_norm,
     arc_lengths_to_config,
+    bending_vector,
+    even_series,
     forward_kinematics,
+    points_from_link_frames,
+    points_in_link_frames,
+    safe_norm,
+    safe_sqrt,
 )
+
+# Below this theta^2 the distance to the backbone circle uses its series form in the
+# bending vector (the bending-plane coordinates divide by theta).
+_STRAIGHT_THETA_SQ = 1e-6
 
 
 def to_bending_plane(points: jnp.ndarray, phi: jnp.ndarray) -> jnp.ndarray:
@@ -44,35 +52,76 @@ def to_bending_plane(points: jnp.ndarray, phi: jnp.ndarray) -> jnp.ndarray:
 def _disk_distance(v: jnp.ndarray, normal: jnp.ndarray, radius: float) -> jnp.ndarray:
     """Distance from points ``v`` (relative to a disk's centre) to the disk, (...,)."""
     h = jnp.sum(v * normal, axis=-1)
-    in_plane = _safe_norm(v - h[..., None] * normal)
-    return _safe_norm(jnp.stack([h, jnp.maximum(in_plane - radius, 0.0)], axis=-1))
+    in_plane = safe_norm(v - h[..., None] * normal)
+    return safe_norm(jnp.stack([h, jnp.maximum(in_plane - radius, 0.0)], axis=-1))
 
 
-def bending_plane_signed_distance(points: jnp.ndarray, theta: jnp.ndarray, spec: RobotSpec) -> jnp.ndarray:
-    """Signed distance to a link whose backbone bends in the xz-plane towards +x.
+def _backbone_circle_distance(points: jnp.ndarray, ab: jnp.ndarray, length: float) -> jnp.ndarray:
+    """Distance from link-frame points to the full circle that carries the backbone, (P,).
+
+    In the bending-plane frame (``x' = e . (x, y)``, ``y' = e_perp . (x, y)``,
+    ``e = ab / theta``) the circle has radius ``rho = 1 / kappa`` about the
+    axis through ``(rho, 0, 0)`` along y'; the distance is
+    ``|(R - rho, y')|`` with ``R = sqrt((rho - x')^2 + z^2)``, and
+    ``R - rho = (kappa (x'^2 + z^2) - 2 x') / (1 + A)``,
+    ``A = kappa R = sqrt((1 - g)^2 + kappa^2 z^2)``, ``g = kappa x' = (a x + b y) / L``.
+
+    Near the straight link (theta^2 < 1e-6) the bending-plane coordinates are
+    ill-defined (they divide by theta), so the squared distance is written in
+    the bending vector alone: with ``F = (R - rho) + x'``,
+    ``F = kappa z^2 H / D^2``, ``x' F = g z^2 H / D^2``,
+    ``H = g^2 / (A + 1 - g) + D + g``, ``D = 1 + A``, and
+    ``distance^2 = x^2 + y^2 - 2 x' F + F^2`` -- smooth in ``(a, b)`` at 0, so
+    the gradient with respect to the arc lengths is right at straight links.
 
     Args:
-      points: (P, 3) points in the bending-plane frame, m.
-      theta: scalar bending angle, rad (0 <= theta < pi).
+      points: (P, 3) link-frame points, m.  ab: (2,) bending vector, rad.  length: L, m.
+    """
+    x, y, z = points[..., 0], points[..., 1], points[..., 2]
+    a, b = ab[..., 0], ab[..., 1]
+    theta_sq = a * a + b * b
+    kappa_sq = theta_sq / (length * length)
+    g = (a * x + b * y) / length
+    axial = jnp.sqrt((1.0 - g) ** 2 + kappa_sq * z * z)
+    near = theta_sq < _STRAIGHT_THETA_SQ
+    # bent: bending-plane coordinates
+    theta = jnp.sqrt(jnp.where(near, 1.0, theta_sq))
+    xp, yp = (a * x + b * y) / theta, (a * y - b * x) / theta
+    radial = (theta / length * (xp * xp + z * z) - 2.0 * xp) / (1.0 + axial)
+    bent_sq = radial * radial + yp * yp
+    # near straight: the series-free form in (a, b)
+    d = 1.0 + axial
+    h = g * g / jnp.where(near, axial + 1.0 - g, 1.0) + d + g
+    z2h = z * z * h / (d * d)
+    near_sq = x * x + y * y - 2.0 * g * z2h + kappa_sq * z2h * z2h
+    return safe_sqrt(jnp.where(near, near_sq, bent_sq))
+
+
+def link_signed_distance_ab(points: jnp.ndarray, ab: jnp.ndarray, spec: RobotSpec) -> jnp.ndarray:
+    """Signed distance from link-frame points to the link with bending vector ``ab``.
+
+    The body is the tube of radius r around the backbone arc, closed by flat
+    end disks: inside the wedge between the two end planes the distance is
+    that to the backbone circle minus r; outside it, the distance to the
+    nearer end disk. Every quantity is a smooth function of ``ab`` (end point
+    and normal through :func:`ncedf.robot.even_series`), so the distance is
+    differentiable in the arc lengths at straight links too.
+
+    Args:
+      points: (P, 3) points in the link's base frame, m.
+      ab: (2,) bending vector ``theta (cos phi, sin phi)``, rad (theta < pi).
     Returns:
       (P,) signed distance to the link surface, m; negative inside.
     """
     length, r = spec.length, spec.radius
-    kappa = theta / length
-    x, y, z = points[..., 0], points[..., 1], points[..., 2]
-    # Distance from the backbone circle within the point's meridional plane:
-    # R - rho, with R the distance from the torus axis, written without the
-    # cancellation of two large numbers when kappa is small.
-    axial = jnp.sqrt((1.0 - kappa * x) ** 2 + (kappa * z) ** 2)
-    radial = (kappa * (x * x + z * z) - 2.0 * x) / (1.0 + axial)
-    to_circle = _safe_norm(jnp.stack([radial, y], axis=-1))
-
-    sinc, versc, cos = _even_series(theta * theta)
-    end_centre = jnp.stack([length * theta * versc, 0.0 * theta, length * sinc])
-    end_normal = jnp.stack([theta * sinc, 0.0 * theta, cos])
+    to_circle = _backbone_circle_distance(points, ab, length)
+    a, b = ab[..., 0], ab[..., 1]
+    sinc, versc, cos = even_series(a * a + b * b)
+    end_centre = jnp.stack([length * versc * a, length * versc * b, length * sinc])
+    end_normal = jnp.stack([sinc * a, sinc * b, cos])
     start_normal = jnp.array([0.0, 0.0, 1.0], dtype=points.dtype)
     to_end = points - end_centre
-    in_wedge = (z >= 0.0) & (jnp.sum(to_end * end_normal, axis=-1) <= 0.0)
+    in_wedge = (points[..., 2] >= 0.0) & (jnp.sum(to_end * end_normal, axis=-1) <= 0.0)
 
     caps = jnp.minimum(
         _disk_distance(points, start_normal, r),
@@ -95,27 +144,23 @@ def link_signed_distance(points: jnp.ndarray, theta, phi, spec: RobotSpec) -> jn
     Returns:
       (P,) signed distance, m (negative inside); ``abs`` of it is the CEDF label.
     """
-    return bending_plane_signed_distance(to_bending_plane(points, phi), theta, spec)
-
-
-def _world_to_link_points(points: jnp.ndarray, arc: jnp.ndarray, spec: RobotSpec) -> jnp.ndarray:
-    """Express world points in every link's base frame: (P, 3) -> (M, P, 3)."""
-    frames = forward_kinematics(arc, spec)[:-1]
-    rot, trans = frames[:, :3, :3], frames[:, :3, 3]
-    return jnp.einsum("mji,mpj->mpi", rot, points[None, :, :] - trans[:, None, :])
+    ab = jnp.stack([theta * jnp.cos(phi), theta * jnp.sin(phi)])
+    return link_signed_distance_ab(points, ab, spec)
 
 
 def robot_link_signed_distances(points: jnp.ndarray, arc: jnp.ndarray, spec: RobotSpec) -> jnp.ndarray:
     """Signed distance from world points to each link of the robot.
+
+    Computed from the bending vectors, so values and gradients (with respect to
+    the points and the arc lengths) are smooth at straight links.
 
     Args:
       points: (P, 3) world points, m.  arc: (M, 3) arc lengths, m.
     Returns:
       (M, P) signed distances, m.
     """
-    local = _world_to_link_points(points, arc, spec)
-    theta, phi = arc_lengths_to_config(arc, spec)
-    return jax.vmap(link_signed_distance, in_axes=(0, 0, 0, None))(local, theta, phi, spec)
+    local = points_in_link_frames(points, forward_kinematics(arc, spec))
+    return jax.vmap(link_signed_distance_ab, in_axes=(0, 0, None))(local, bending_vector(arc, spec), spec)
 
 
 def robot_signed_distance(points: jnp.ndarray, arc: jnp.ndarray, spec: RobotSpec) -> jnp.ndarray:
@@ -138,7 +183,7 @@ def surface_points_bending_plane(coords: jnp.ndarray, theta, spec: RobotSpec) ->
     """
     u, psi, w = coords[..., 0], coords[..., 1], coords[..., 2]
     t = theta * u
-    sinc, versc, cos = _even_series(t * t)
+    sinc, versc, cos = even_series(t * t)
     sin = t * sinc
     length, r = spec.length, spec.radius
     radial = w * r * jnp.cos(psi)
@@ -192,18 +237,18 @@ def sample_link_surface(key, n: int, theta, phi, spec: RobotSpec) -> jnp.ndarray
     return link_surface_points(sample_surface_coords(key, n, theta, spec), theta, phi, spec)
 
 
-def robot_surface_points(coords: jnp.ndarray, arc: jnp.ndarray, spec: RobotSpec) -> jnp.ndarray:
+def robot_surface_points(coords: jnp.ndarray, arc: jnp.ndarray, spec: RobotSpec, frames=None) -> jnp.ndarray:
     """Fixed per-link surface coordinates mapped through the kinematics.
 
     Args:
       coords: (M, P, 3) surface coordinates per link.  arc: (M, 3) arc lengths, m.
+      frames: (M + 1, 4, 4) forward kinematics of ``arc`` if already computed.
     Returns:
       (M, P, 3) world points, m.
     """
     theta, phi = arc_lengths_to_config(arc, spec)
     local = jax.vmap(link_surface_points, in_axes=(0, 0, 0, None))(coords, theta, phi, spec)
-    frames = forward_kinematics(arc, spec)[:-1]
-    return jnp.einsum("mij,mpj->mpi", frames[:, :3, :3], local) + frames[:, None, :3, 3]
+    return points_from_link_frames(local, forward_kinematics(arc, spec) if frames is None else frames)
 
 
 def mesh_grid_coords(rings: int, around: int) -> np.ndarray:

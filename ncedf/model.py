@@ -33,8 +33,15 @@ import jax
 import jax.numpy as jnp
 
 from ncedf.data import BOX_MAX, BOX_MIN
-from ncedf.geometry import _world_to_link_points, to_bending_plane
-from ncedf.robot import RobotSpec, arc_lengths_to_config, arc_sagitta, link_transform
+from ncedf.geometry import to_bending_plane
+from ncedf.robot import (
+    RobotSpec,
+    arc_lengths_to_config,
+    arc_sagitta,
+    forward_kinematics,
+    link_transform,
+    points_in_link_frames,
+)
 
 ENCODINGS = ("paper", "bending-plane")
 OUTPUTS = ("distance", "signed-abs")
@@ -193,7 +200,7 @@ class NCEDF:
         Args:
           points: (P, 3) world points, m.  arc: (M, 3) arc lengths, m.
         """
-        local = _world_to_link_points(points, arc, self.spec)
+        local = points_in_link_frames(points, forward_kinematics(arc, self.spec))
         theta, phi = arc_lengths_to_config(arc, self.spec)
         return jax.vmap(self.link_distance)(local, theta, phi)
 
@@ -204,10 +211,6 @@ class NCEDF:
     @property
     def metadata(self) -> dict:
         return dict(self.meta)
-
-
-def _spec_dict(spec: RobotSpec) -> dict:
-    return {k: v for k, v in dataclasses.asdict(spec).items() if k != "n_links"}
 
 
 def save_model(path, params, config: ModelConfig, spec: RobotSpec, extra: dict,
@@ -227,7 +230,7 @@ def save_model(path, params, config: ModelConfig, spec: RobotSpec, extra: dict,
     meta = {
         "format_version": FORMAT_VERSION,
         "architecture": dataclasses.asdict(config),
-        "robot": _spec_dict(spec),
+        "robot": spec.link_geometry(),
         "domain": {"box_min": list(domain[0]), "box_max": list(domain[1])},
         "n_parameters": int(sum(x.size for x in jax.tree_util.tree_leaves(params))),
         "weights_bytes": len(blob),

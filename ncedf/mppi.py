@@ -23,8 +23,9 @@ Update: ``C~ = (C - min C) / (max C - min C)``, ``w = exp(-C~ / lambda)``,
 ``U <- (1 - alpha_u) U + alpha_u sum_j w_j u^j / sum_j w_j``; the first control is
 executed, the plan is shifted by one step (the last control repeated, or zero).
 
-The jitted core is pure: :meth:`MPPI.core_step` (one jitted function per robot
-and configuration, shared by all controllers built with them). :meth:`MPPI.step` validates its
+The step is a pure function, :func:`mppi_step` (jitted with the robot and the
+settings static, so every controller built with them shares its compiled
+programs). :class:`MPPI` is a thin validating shell: :meth:`MPPI.step` checks its
 inputs, pads the obstacle cloud to ``max_points`` with a mask, and calls it, so
 new states, goals and obstacle clouds (of any size up to the capacity) reuse one
 compiled program per goal kind.
@@ -42,7 +43,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from ncedf.broad_phase import rollout_min_distances_broad, rollout_min_distances_brute
-from ncedf.robot import RobotSpec, forward_kinematics, state_violation, InvalidStateError
+from ncedf.robot import RobotSpec, forward_kinematics, validate_state
+from ncedf.shapes import Shape
 
 
 @dataclasses.dataclass(frozen=True)
@@ -189,17 +191,99 @@ def limit_to_state_bounds(arc: jnp.ndarray, u: jnp.ndarray, dt: float, spec: Rob
     return u * jnp.minimum(1.0, jnp.min(ratio, axis=-1, keepdims=True))
 
 
-@functools.lru_cache(maxsize=None)
-def _jitted_core(spec: RobotSpec, config: MPPIConfig):
-    """The jitted core step for (robot, settings), shared by every controller built with them.
+def init_state(spec: RobotSpec, config: MPPIConfig, key) -> MPPIState:
+    """Zero nominal controls (paper: the initial reference is zero) and the key."""
+    return MPPIState(jnp.zeros((config.horizon, spec.n_links, 3), jnp.float32), jnp.asarray(key))
 
-    The shape representation is an argument (a pytree), so controllers with the
-    same robot, settings and kind of representation reuse one compiled program
-    per goal kind instead of compiling their own.
+
+def rollout_min_distances(config: MPPIConfig, shape, arcs, points, mask, frames=None):
+    """(N, H) min distance per rollout state (N, H, M, 3), by the broad phase or brute force."""
+    if config.broad_phase:
+        return rollout_min_distances_broad(shape, arcs, points, mask, config.k1, config.k2, config.capsule_segments,
+                                           frames)
+    return rollout_min_distances_brute(shape, arcs, points, mask)
+
+
+def goal_distance(frames_ee: jnp.ndarray, goal: jnp.ndarray) -> jnp.ndarray:
+    """Goal cost distance: Frobenius ``||T_ee - T_G||`` for a pose goal (4, 4), else
+    ``||p_ee - p_G||`` for a position goal (3,); ``frames_ee`` (..., 4, 4) -> (...,)."""
+    if goal.shape == (4, 4):
+        return jnp.sqrt(jnp.sum((frames_ee - goal) ** 2, axis=(-2, -1)))
+    return jnp.sqrt(jnp.sum((frames_ee[..., :3, 3] - goal) ** 2, axis=-1))
+
+
+@functools.partial(jax.jit, static_argnums=(0, 1))
+def mppi_step(spec: RobotSpec, config: MPPIConfig, shape, state: MPPIState, arc, goal, points, mask):
+    """One MPPI iteration: a pure function, jitted with ``spec`` and ``config`` static.
+
+    No validation (see :meth:`MPPI.step` for the validated form). Every
+    controller with the same robot, settings and kind of representation shares
+    one compiled program per goal kind; the representation is a pytree argument.
+
+    Args:
+      shape: a :class:`ncedf.shapes.Shape`.  state: :class:`MPPIState`.
+      arc: (M, 3) current arc lengths, m.  goal: (3,) position or (4, 4) pose.
+      points: (max_points, 3) obstacle cloud, m; mask: (max_points,) bool, True = real point.
+    Returns:
+      action (M, 3) m/s, the next :class:`MPPIState`, and an :class:`MPPIInfo`.
     """
-    proto = object.__new__(MPPI)
-    proto.spec, proto.config = spec, config
-    return jax.jit(proto._core_step)
+    c = config
+    key, k_noise = jax.random.split(state.key)
+    nominal = state.nominal
+    sigma = math.sqrt(c.covariance)
+    eps = sigma * jax.random.normal(k_noise, (c.samples,) + nominal.shape, nominal.dtype)
+    if c.noise_clip is not None:
+        eps = jnp.clip(eps, -c.noise_clip, c.noise_clip)
+    u = project_controls(nominal[None] + eps, c.control_bound)  # (N, H, M, 3)
+    arcs = arc[None, None] + c.dt * jnp.cumsum(u, axis=1)  # x^1 .. x^H
+
+    # Per-state terms.
+    frames = forward_kinematics(arcs, spec)  # (N, H, M + 1, 4, 4)
+    goal_d = goal_distance(frames[..., -1, :, :], goal)  # (N, H)
+    dist = rollout_min_distances(config, shape, arcs, points, mask, frames)  # (N, H)
+    coll = 1.0 / jnp.maximum(dist - c.safety_margin, c.epsilon)
+    viol = jnp.sum(jnp.maximum(spec.l_min - arcs, 0.0) + jnp.maximum(arcs - spec.l_max, 0.0), axis=(-2, -1))
+
+    running = (jnp.arange(c.horizon) < c.horizon - 1).astype(arcs.dtype)  # x^1 .. x^{H-1}
+    terminal = 1.0 - running  # x^H
+    c_goal = jnp.sum(goal_d * (c.w_goal * running + c.w_goal_terminal * terminal), axis=1)
+    c_coll = jnp.sum(coll * (c.w_coll * running + c.w_coll_terminal * terminal), axis=1)
+    c_state = c.w_state * jnp.sum(viol * running, axis=1)
+    c_pert = c.w_perturbation * jnp.sum(nominal[None] * eps, axis=(1, 2, 3)) / c.covariance
+    total = c_goal + c_coll + c_state + c_pert
+
+    lo, hi = jnp.min(total), jnp.max(total)
+    spread = hi - lo
+    norm = jnp.where(spread > 0, (total - lo) / jnp.where(spread > 0, spread, 1.0), 0.0)
+    w = jnp.exp(-norm / c.temperature)
+    w = w / jnp.sum(w)
+    ess = 1.0 / jnp.sum(w * w)
+    updated = (1.0 - c.alpha_u) * nominal + c.alpha_u * jnp.einsum("n,nhmc->hmc", w, u)
+
+    action = updated[0]
+    if c.limit_action:
+        action = limit_to_state_bounds(arc, action, c.dt, spec)
+    fill = updated[-1:] if c.shift_fill == "last" else jnp.zeros_like(updated[-1:])
+    next_nominal = jnp.concatenate([updated[1:], fill], axis=0)
+
+    plan_arcs = jnp.concatenate([arc[None], arc[None] + c.dt * jnp.cumsum(updated, axis=0)], axis=0)
+    plan = forward_kinematics(plan_arcs, spec)[:, -1, :3, 3]
+    best = jnp.argmin(total)
+    info = MPPIInfo(
+        plan=plan,
+        predicted_min_distance=jnp.min(dist[best]),
+        current_min_distance=shape.min_distance(points, arc, mask),
+        cost_goal=c_goal[best],
+        cost_coll=c_coll[best],
+        cost_state=c_state[best],
+        cost_perturbation=c_pert[best],
+        cost_min=lo,
+        cost_max=hi,
+        ess=ess,
+        selected=best,
+        rollout_min_distance=dist,
+    )
+    return action, MPPIState(next_nominal, key), info
 
 
 class MPPI:
@@ -215,96 +299,17 @@ class MPPI:
         config = MPPIConfig() if config is None else config
         if not isinstance(config, MPPIConfig):
             raise ValueError(f"config must be an MPPIConfig, got {type(config).__name__}")
-        for name in ("min_distance", "prepare", "pair_distances"):
-            if not hasattr(shape, name):
-                raise ValueError(f"shape must be a representation from ncedf.shapes.make_shape, got {shape!r}")
+        if not isinstance(shape, Shape):
+            raise ValueError(f"shape must be a representation from ncedf.shapes.make_shape, got {shape!r}")
         if shape.spec.n_links != spec.n_links:
             raise ValueError(f"the shape is for {shape.spec.n_links} links, the robot has {spec.n_links}")
         self.spec = spec
         self.shape = shape
         self.config = config
-        self._core = _jitted_core(spec, config)
 
-    # ------------------------------------------------------------------ pure
     def init(self, key) -> MPPIState:
         """Zero nominal controls (paper: the initial reference is zero) and the key."""
-        c = self.config
-        return MPPIState(jnp.zeros((c.horizon, self.spec.n_links, 3), jnp.float32), jnp.asarray(key))
-
-    def rollout_min_distances(self, shape, arcs, points, mask, frames=None):
-        """(N, H) min distance per rollout state, by the broad phase or brute force."""
-        c = self.config
-        if c.broad_phase:
-            return rollout_min_distances_broad(shape, arcs, points, mask, c.k1, c.k2, c.capsule_segments, frames)
-        return rollout_min_distances_brute(shape, arcs, points, mask)
-
-    def _goal_distance(self, frames_ee, goal):
-        if goal.shape == (4, 4):
-            return jnp.sqrt(jnp.sum((frames_ee - goal) ** 2, axis=(-2, -1)))
-        return jnp.sqrt(jnp.sum((frames_ee[..., :3, 3] - goal) ** 2, axis=-1))
-
-    def _core_step(self, shape, state: MPPIState, arc, goal, points, mask):
-        c, spec = self.config, self.spec
-        key, k_noise = jax.random.split(state.key)
-        nominal = state.nominal
-        sigma = math.sqrt(c.covariance)
-        eps = sigma * jax.random.normal(k_noise, (c.samples,) + nominal.shape, nominal.dtype)
-        if c.noise_clip is not None:
-            eps = jnp.clip(eps, -c.noise_clip, c.noise_clip)
-        u = project_controls(nominal[None] + eps, c.control_bound)  # (N, H, M, 3)
-        arcs = arc[None, None] + c.dt * jnp.cumsum(u, axis=1)  # x^1 .. x^H
-
-        # Per-state terms.
-        frames = forward_kinematics(arcs, spec)  # (N, H, M + 1, 4, 4)
-        goal_d = self._goal_distance(frames[..., -1, :, :], goal)  # (N, H)
-        dist = self.rollout_min_distances(shape, arcs, points, mask, frames)  # (N, H)
-        coll = 1.0 / jnp.maximum(dist - c.safety_margin, c.epsilon)
-        viol = jnp.sum(jnp.maximum(spec.l_min - arcs, 0.0) + jnp.maximum(arcs - spec.l_max, 0.0), axis=(-2, -1))
-
-        running = (jnp.arange(c.horizon) < c.horizon - 1).astype(arcs.dtype)  # x^1 .. x^{H-1}
-        terminal = 1.0 - running  # x^H
-        c_goal = jnp.sum(goal_d * (c.w_goal * running + c.w_goal_terminal * terminal), axis=1)
-        c_coll = jnp.sum(coll * (c.w_coll * running + c.w_coll_terminal * terminal), axis=1)
-        c_state = c.w_state * jnp.sum(viol * running, axis=1)
-        c_pert = c.w_perturbation * jnp.sum(nominal[None] * eps, axis=(1, 2, 3)) / c.covariance
-        total = c_goal + c_coll + c_state + c_pert
-
-        lo, hi = jnp.min(total), jnp.max(total)
-        spread = hi - lo
-        norm = jnp.where(spread > 0, (total - lo) / jnp.where(spread > 0, spread, 1.0), 0.0)
-        w = jnp.exp(-norm / c.temperature)
-        w = w / jnp.sum(w)
-        ess = 1.0 / jnp.sum(w * w)
-        updated = (1.0 - c.alpha_u) * nominal + c.alpha_u * jnp.einsum("n,nhmc->hmc", w, u)
-
-        action = updated[0]
-        if c.limit_action:
-            action = limit_to_state_bounds(arc, action, c.dt, spec)
-        fill = updated[-1:] if c.shift_fill == "last" else jnp.zeros_like(updated[-1:])
-        next_nominal = jnp.concatenate([updated[1:], fill], axis=0)
-
-        plan_arcs = jnp.concatenate([arc[None], arc[None] + c.dt * jnp.cumsum(updated, axis=0)], axis=0)
-        plan = forward_kinematics(plan_arcs, spec)[:, -1, :3, 3]
-        best = jnp.argmin(total)
-        info = MPPIInfo(
-            plan=plan,
-            predicted_min_distance=jnp.min(dist[best]),
-            current_min_distance=shape.min_distance(points, arc, mask),
-            cost_goal=c_goal[best],
-            cost_coll=c_coll[best],
-            cost_state=c_state[best],
-            cost_perturbation=c_pert[best],
-            cost_min=lo,
-            cost_max=hi,
-            ess=ess,
-            selected=best,
-            rollout_min_distance=dist,
-        )
-        return action, MPPIState(next_nominal, key), info
-
-    def core_step(self, state: MPPIState, arc, goal, points, mask):
-        """The jitted pure step: no validation; ``points`` (max_points, 3), ``mask`` (max_points,)."""
-        return self._core(self.shape, state, arc, goal, points, mask)
+        return init_state(self.spec, self.config, key)
 
     # ------------------------------------------------------------- validated
     def pad_points(self, obstacle_points):
@@ -341,13 +346,6 @@ class MPPI:
             raise ValueError(f"goal contains NaN or inf: {g.tolist()}")
         return jnp.asarray(g)
 
-    def check_state(self, arc):
-        """Validate the robot state (M, 3): shape, finite, limits, sum 3L (InvalidStateError)."""
-        reason = state_violation(arc, self.spec)
-        if reason is not None:
-            raise InvalidStateError(f"invalid robot state: {reason}")
-        return jnp.asarray(np.asarray(arc, dtype=np.float32))
-
     def step(self, state: MPPIState, arc, goal, obstacle_points=None):
         """One MPPI iteration with validated inputs.
 
@@ -368,10 +366,10 @@ class MPPI:
         expected = (self.config.horizon, self.spec.n_links, 3)
         if tuple(np.shape(state.nominal)) != expected:
             raise ValueError(f"state.nominal must have shape {expected}, got {np.shape(state.nominal)}")
-        arc = self.check_state(arc)
+        arc = jnp.asarray(validate_state(arc, self.spec), jnp.float32)
         goal = self.check_goal(goal)
         points, mask = self.pad_points(obstacle_points)
-        action, new_state, info = self.core_step(state, arc, goal, points, mask)
+        action, new_state, info = mppi_step(self.spec, self.config, self.shape, state, arc, goal, points, mask)
         if not bool(jnp.all(jnp.isfinite(action))):
             raise FloatingPointError("MPPI produced a non-finite action; the inputs or the shape model are broken")
         return action, new_state, info

@@ -67,6 +67,10 @@ class RobotSpec:
                 f"length={self.length}, l_max={self.l_max}"
             )
 
+    def link_geometry(self) -> dict:
+        """Every field but ``n_links``: what a single link's data, model or hash depends on."""
+        return {k: v for k, v in dataclasses.asdict(self).items() if k != "n_links"}
+
     def max_bend(self) -> float:
         """Largest bending angle theta (rad) the arc-length limits admit."""
         # Chamber j deviates by v_j = r theta cos(phi + 2 pi j / 3) (shortening),
@@ -102,11 +106,15 @@ def bending_vector(arc: jnp.ndarray, spec: RobotSpec) -> jnp.ndarray:
     return jnp.stack([a, b], axis=-1)
 
 
-def _safe_norm(v: jnp.ndarray) -> jnp.ndarray:
+def safe_sqrt(sq: jnp.ndarray) -> jnp.ndarray:
+    """``sqrt(max(sq, 0))`` with a zero (not NaN or inf) gradient where ``sq <= 0``."""
+    positive = sq > 0
+    return jnp.where(positive, jnp.sqrt(jnp.where(positive, sq, 1.0)), 0.0)
+
+
+def safe_norm(v: jnp.ndarray) -> jnp.ndarray:
     """Euclidean norm over the last axis with a zero (not NaN) gradient at 0."""
-    sq = jnp.sum(v * v, axis=-1)
-    nonzero = sq > 0
-    return jnp.where(nonzero, jnp.sqrt(jnp.where(nonzero, sq, 1.0)), 0.0)
+    return safe_sqrt(jnp.sum(v * v, axis=-1))
 
 
 def arc_lengths_to_config(arc: jnp.ndarray, spec: RobotSpec) -> tuple[jnp.ndarray, jnp.ndarray]:
@@ -118,7 +126,7 @@ def arc_lengths_to_config(arc: jnp.ndarray, spec: RobotSpec) -> tuple[jnp.ndarra
       theta (...,) in [0, pi], rad; phi (...,) in [-pi, pi), rad (0 where theta = 0).
     """
     ab = bending_vector(arc, spec)
-    theta = _safe_norm(ab)
+    theta = safe_norm(ab)
     straight = theta == 0
     a = jnp.where(straight, 1.0, ab[..., 0])
     b = jnp.where(straight, 0.0, ab[..., 1])
@@ -141,8 +149,19 @@ def config_to_arc_lengths(theta: jnp.ndarray, phi: jnp.ndarray, spec: RobotSpec)
     return spec.length - spec.radius * theta[..., None] * jnp.cos(phi[..., None] + angles)
 
 
-def _even_series(theta_sq: jnp.ndarray):
-    """``sin(t)/t``, ``(1 - cos t)/t^2`` and ``cos t`` as smooth functions of ``t^2``."""
+def even_series(theta_sq: jnp.ndarray):
+    """``sin(t)/t``, ``(1 - cos t)/t^2`` and ``cos t`` as smooth functions of ``t^2``.
+
+    The building blocks of every PCC formula here: a link's transform, backbone
+    and surface depend on its bending angle only through these, so values and
+    gradients stay finite and exact at ``t = 0`` (Taylor series below
+    ``t^2 = 1e-4``).
+
+    Args:
+      theta_sq: (...,) squared angle, rad^2.
+    Returns:
+      sinc, versc, cos: three (...,) arrays.
+    """
     small = theta_sq < _SMALL_THETA_SQ
     safe_sq = jnp.where(small, 1.0, theta_sq)
     t = jnp.sqrt(safe_sq)
@@ -167,7 +186,7 @@ def _link_components(ab: jnp.ndarray, length: float):
       length: backbone length L, m.
     """
     a, b = ab[..., 0], ab[..., 1]
-    sinc, versc, cos = _even_series(a * a + b * b)
+    sinc, versc, cos = even_series(a * a + b * b)
     # Rodrigues with w = (-b, a, 0): R = I + sinc [w]x + versc [w]x^2.
     r00 = 1.0 - versc * a * a
     r01 = -versc * a * b
@@ -208,7 +227,7 @@ def arc_sagitta(theta: jnp.ndarray, length) -> jnp.ndarray:
     Args:
       theta: (...,) arc angle, rad.  length: (...,) or scalar arc length, m.
     """
-    _, versc, _ = _even_series(theta * theta / 4.0)
+    _, versc, _ = even_series(theta * theta / 4.0)
     return length * theta / 4.0 * versc
 
 
@@ -226,7 +245,7 @@ def link_transform(theta: jnp.ndarray, phi: jnp.ndarray, spec: RobotSpec) -> jnp
     return link_transform_from_bending(ab, spec.length)
 
 
-def link_base_frames(arc: jnp.ndarray, spec: RobotSpec) -> jnp.ndarray:
+def forward_kinematics(arc: jnp.ndarray, spec: RobotSpec) -> jnp.ndarray:
     """Forward kinematics (paper eq. 4): the chain of link transforms.
 
     Computed per component (3 x 3 rotation and translation as separate
@@ -257,12 +276,51 @@ def link_base_frames(arc: jnp.ndarray, spec: RobotSpec) -> jnp.ndarray:
     return jnp.stack(frames, axis=-3)
 
 
-forward_kinematics = link_base_frames
-
-
 def end_effector_pose(arc: jnp.ndarray, spec: RobotSpec) -> jnp.ndarray:
     """End-effector pose T_ee, shape (..., 4, 4), for arc lengths (..., M, 3)."""
     return forward_kinematics(arc, spec)[..., -1, :, :]
+
+
+def world_to_frame(frames: jnp.ndarray, points: jnp.ndarray) -> jnp.ndarray:
+    """World points expressed in frames: ``R^T (p - t)``, broadcasting.
+
+    Written per component: a batched (..., 3, 3) product is slow on CPU.
+
+    Args:
+      frames: (..., 4, 4) homogeneous transforms frame -> world.
+      points: (..., 3) world points, m (leading axes broadcast with the frames').
+    Returns:
+      (..., 3) points in the frames, m.
+    """
+    v = [points[..., j] - frames[..., j, 3] for j in range(3)]
+    return jnp.stack([frames[..., 0, i] * v[0] + frames[..., 1, i] * v[1] + frames[..., 2, i] * v[2] for i in range(3)],
+                     axis=-1)
+
+
+def frame_to_world(frames: jnp.ndarray, points: jnp.ndarray) -> jnp.ndarray:
+    """Points given in frames, expressed in the world: ``R p + t``, broadcasting (inverse of
+    :func:`world_to_frame`; shapes as there)."""
+    return jnp.stack(
+        [frames[..., i, 0] * points[..., 0] + frames[..., i, 1] * points[..., 1] + frames[..., i, 2] * points[..., 2]
+         + frames[..., i, 3] for i in range(3)],
+        axis=-1,
+    )
+
+
+def points_in_link_frames(points: jnp.ndarray, frames: jnp.ndarray) -> jnp.ndarray:
+    """World points in every link's base frame.
+
+    Args:
+      points: (P, 3) world points, m.  frames: (M + 1, 4, 4) forward kinematics.
+    Returns:
+      (M, P, 3) link-frame points, m.
+    """
+    return world_to_frame(frames[:-1, None], points[None])
+
+
+def points_from_link_frames(local: jnp.ndarray, frames: jnp.ndarray) -> jnp.ndarray:
+    """Per-link points (M, P, 3) in the links' base frames -> world points (M, P, 3), m."""
+    return frame_to_world(frames[:-1, None], local)
 
 
 # Tolerance of the inextensibility constraint sum(l) = 3L, m: float32 closed
@@ -300,8 +358,38 @@ def validate_state(arc, spec: RobotSpec) -> np.ndarray:
     """Return ``arc`` as a float array, or raise InvalidStateError saying why not."""
     reason = state_violation(arc, spec)
     if reason is not None:
-        raise InvalidStateError(reason)
+        raise InvalidStateError(f"invalid robot state: {reason}")
     return np.asarray(arc, dtype=np.float64)
+
+
+def project_state(arc: jnp.ndarray, spec: RobotSpec) -> jnp.ndarray:
+    """The nearest valid state: per link, the Euclidean projection onto
+    ``{l : l_1 + l_2 + l_3 = 3 L, l_min <= l_j <= l_max}``.
+
+    A closed loop ``arc + u dt`` in float32 drifts off the sum by ~1e-5 m over
+    hundreds of steps; this repairs it (and clips small excursions past the
+    limits). The projection is ``clip(l - tau, l_min, l_max)`` with the scalar
+    ``tau`` that restores the sum; the sum is piecewise linear and
+    non-increasing in ``tau`` with breakpoints ``l_j - l_min`` and
+    ``l_j - l_max``, so ``tau`` is found exactly by linear interpolation between
+    the two breakpoints that bracket ``3 L`` (no iteration).
+
+    Args:
+      arc: (..., 3) arc lengths, m (finite).
+    Returns:
+      (..., 3) arc lengths within the limits whose rows sum to 3L, m.
+    """
+    arc = jnp.asarray(arc)
+    total = 3.0 * spec.length
+    breaks = jnp.sort(jnp.concatenate([arc - spec.l_min, arc - spec.l_max], axis=-1), axis=-1)  # (..., 6)
+    sums = jnp.sum(jnp.clip(arc[..., None, :] - breaks[..., :, None], spec.l_min, spec.l_max), axis=-1)  # (..., 6)
+    # sums runs from 3 l_max down to 3 l_min; bracket the target between breaks k and k + 1.
+    k = jnp.clip(jnp.sum(sums >= total, axis=-1) - 1, 0, 4)[..., None]
+    t0, t1 = jnp.take_along_axis(breaks, k, -1), jnp.take_along_axis(breaks, k + 1, -1)
+    s0, s1 = jnp.take_along_axis(sums, k, -1), jnp.take_along_axis(sums, k + 1, -1)
+    drop = s0 - s1
+    tau = jnp.where(drop > 0, t0 + (s0 - total) * (t1 - t0) / jnp.where(drop > 0, drop, 1.0), t0)
+    return jnp.clip(arc - tau, spec.l_min, spec.l_max)
 
 
 def sample_arc_lengths(key, spec: RobotSpec, shape: tuple[int, ...] = ()) -> jnp.ndarray:

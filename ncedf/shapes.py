@@ -32,7 +32,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-from typing import NamedTuple
+from typing import NamedTuple, Protocol, runtime_checkable
 
 import jax
 import jax.numpy as jnp
@@ -40,12 +40,21 @@ import numpy as np
 
 from ncedf.geometry import (
     link_signed_distance,
-    link_surface_points,
+    robot_link_signed_distances,
+    robot_surface_points,
     sample_surface_coords,
     surface_points_bending_plane,
     to_bending_plane,
 )
-from ncedf.robot import RobotSpec, arc_lengths_to_config, arc_sagitta, forward_kinematics, link_transform
+from ncedf.robot import (
+    RobotSpec,
+    arc_lengths_to_config,
+    arc_sagitta,
+    forward_kinematics,
+    link_transform,
+    points_from_link_frames,
+    world_to_frame,
+)
 
 DEFAULT_SPHERES_PER_LINK = 8
 
@@ -66,20 +75,34 @@ class LinkGeometry(NamedTuple):
     radius: jnp.ndarray | None = None
 
 
-def _to_local(frames: jnp.ndarray, link: jnp.ndarray, points: jnp.ndarray) -> jnp.ndarray:
-    """World points (K, 3) -> the base frame of link ``link[k]`` each, (K, 3).
+@runtime_checkable
+class Shape(Protocol):
+    """The interface every robot shape representation offers (see the module docstring).
 
-    ``R^T (p - t)`` per component: a batched (K, 3, 3) product is slow on CPU.
+    Implementations are frozen dataclasses registered as pytrees, so they pass
+    into jitted functions; ``spec`` and ``name`` are static.
     """
-    f = frames[link]  # (K, 4, 4)
-    v = [points[:, j] - f[:, j, 3] for j in range(3)]
-    return jnp.stack([f[:, 0, i] * v[0] + f[:, 1, i] * v[1] + f[:, 2, i] * v[2] for i in range(3)], axis=-1)
 
+    spec: RobotSpec
+    name: str
 
-def _to_local_all(frames: jnp.ndarray, points: jnp.ndarray) -> jnp.ndarray:
-    """World points (P, 3) -> every link's base frame, (M, P, 3)."""
-    rot, trans = frames[:-1, :3, :3], frames[:-1, :3, 3]
-    return jnp.einsum("mji,mpj->mpi", rot, points[None, :, :] - trans[:, None, :])
+    def min_distance(self, points: jnp.ndarray, arc: jnp.ndarray, mask=None) -> jnp.ndarray:
+        """Smallest distance from the (unmasked) points (P, 3) to the robot at arc (M, 3); +inf if none, m."""
+
+    def distances(self, points: jnp.ndarray, arc: jnp.ndarray) -> jnp.ndarray:
+        """(P,) distance from each point to the robot, m."""
+
+    def link_distances(self, points: jnp.ndarray, arc: jnp.ndarray) -> jnp.ndarray:
+        """(M, P) distance from each point to each link, m."""
+
+    def prepare(self, arc: jnp.ndarray, frames=None) -> LinkGeometry:
+        """Per-configuration geometry for ``pair_distances``."""
+
+    def pair_distances(self, geom: LinkGeometry, points: jnp.ndarray, link: jnp.ndarray) -> jnp.ndarray:
+        """(K,) distance of point k (K, 3) to link ``link[k]`` only, m."""
+
+    def state_pair_distances(self, arcs, frames, points, link) -> jnp.ndarray:
+        """``pair_distances`` for a batch of states (B..., M, 3), their frames and pairs (B..., K), m."""
 
 
 def _sq_dist(p: jnp.ndarray, q: jnp.ndarray) -> jnp.ndarray:
@@ -138,7 +161,7 @@ class ExactShape(_Base):
         return self._base_geometry(arc, frames)
 
     def pair_distances(self, geom: LinkGeometry, points, link):
-        local = _to_local(geom.frames, link, points)
+        local = world_to_frame(geom.frames[link], points)
 
         def one(p, th, ph):
             return link_signed_distance(p[None], th, ph, self.spec)[0]
@@ -146,9 +169,7 @@ class ExactShape(_Base):
         return jax.vmap(one)(local, geom.theta[link], geom.phi[link])
 
     def link_distances(self, points, arc):
-        geom = self.prepare(arc)
-        local = _to_local_all(geom.frames, points)
-        return jax.vmap(link_signed_distance, in_axes=(0, 0, 0, None))(local, geom.theta, geom.phi, self.spec)
+        return robot_link_signed_distances(points, arc, self.spec)
 
 
 @jax.tree_util.register_dataclass
@@ -176,35 +197,32 @@ class NCEDFShape(_Base):
         instead of K batched matrix-vector products.
         """
         model = self.model
-        local = _to_local(geom.frames, link, points)  # (K, 3)
+        local = world_to_frame(geom.frames[link], points)  # (K, 3)
         theta, phi = geom.theta[link], geom.phi[link]
         end = link_transform(geom.theta, geom.phi, model.spec)[:, :3, 3][link]  # (K, 3)
         return model.local_distance(local, theta, phi, end, arc_sagitta(theta, model.spec.length))
 
     def state_pair_distances(self, arcs, frames, points, link):
         """Batched pairs: the per-link quantities of all states are computed once and
-        gathered per pair in one ``take_along_axis``; same computation as ``pair_distances``."""
-        model, spec = self.model, self.model.spec
+        gathered per pair; the same computation as ``pair_distances``."""
+        model = self.model
         theta_l, phi_l = arc_lengths_to_config(arcs, self.spec)  # (B..., M)
-        end_l = link_transform(theta_l, phi_l, spec)[..., :3, 3]  # (B..., M, 3)
-        sagitta_l = arc_sagitta(theta_l, spec.length)
-        base = frames[..., :-1, :3, :].reshape(frames.shape[:-3] + (arcs.shape[-2], 12))  # rows of [R | t]
-        per_link = jnp.concatenate(
-            [base, end_l, theta_l[..., None], phi_l[..., None], sagitta_l[..., None]], axis=-1
-        )  # (B..., M, 18)
-        q = jnp.take_along_axis(per_link, link[..., None], axis=-2)  # (B..., K, 18)
-        batch = q.shape[:-1]
-        q = q.reshape(-1, 18)
-        pts = points.reshape(-1, 3)
-        v = [pts[:, j] - q[:, 4 * j + 3] for j in range(3)]
-        local = jnp.stack([q[:, i] * v[0] + q[:, 4 + i] * v[1] + q[:, 8 + i] * v[2] for i in range(3)], axis=-1)
-        end, theta, phi, sagitta = q[:, 12:15], q[:, 15], q[:, 16], q[:, 17]
-        return model.local_distance(local, theta, phi, end, sagitta).reshape(batch)
+        end_l = link_transform(theta_l, phi_l, model.spec)[..., :3, 3]  # (B..., M, 3)
+
+        def gather(per_link):  # (B..., M, ...) -> (B..., K, ...)
+            index = link.reshape(link.shape + (1,) * (per_link.ndim - link.ndim))
+            return jnp.take_along_axis(per_link, index, axis=link.ndim - 1)
+
+        theta, phi = gather(theta_l), gather(phi_l)
+        local = world_to_frame(gather(frames[..., :-1, :, :]), points)  # (B..., K, 3)
+        batch = theta.shape
+        return model.local_distance(
+            local.reshape(-1, 3), theta.reshape(-1), phi.reshape(-1), gather(end_l).reshape(-1, 3),
+            arc_sagitta(theta, model.spec.length).reshape(-1),
+        ).reshape(batch)
 
     def link_distances(self, points, arc):
-        geom = self.prepare(arc)
-        local = _to_local_all(geom.frames, points)
-        return jax.vmap(self.model.link_distance)(local, geom.theta, geom.phi)
+        return self.model.robot_link_distances(points, arc)
 
 
 def sphere_cover_radius(theta, spec: RobotSpec, per_link: int):
@@ -258,9 +276,7 @@ class SphereShape(_Base):
     def prepare(self, arc, frames=None):
         """Per-configuration geometry; ``frames`` = forward kinematics if already known."""
         base = self._base_geometry(arc, frames)
-        local = jax.vmap(self.centres_local)(base.theta, base.phi)
-        frames = base.frames[:-1]
-        centres = jnp.einsum("mij,mnj->mni", frames[:, :3, :3], local) + frames[:, None, :3, 3]
+        centres = points_from_link_frames(jax.vmap(self.centres_local)(base.theta, base.phi), base.frames)
         radius = sphere_cover_radius(base.theta, self.spec, self.per_link)
         return base._replace(centres=centres, radius=radius)
 
@@ -291,10 +307,7 @@ class PointCloudShape(_Base):
 
     def surface_points(self, arc, frames=None):
         """The robot's surface samples in the world, (M, n, 3)."""
-        base = self._base_geometry(arc, frames)
-        local = jax.vmap(link_surface_points, in_axes=(0, 0, 0, None))(self.coords, base.theta, base.phi, self.spec)
-        frames = base.frames[:-1]
-        return jnp.einsum("mij,mnj->mni", frames[:, :3, :3], local) + frames[:, None, :3, 3]
+        return robot_surface_points(self.coords, arc, self.spec, frames)
 
     def prepare(self, arc, frames=None):
         """Per-configuration geometry; ``frames`` = forward kinematics if already known."""
@@ -310,7 +323,6 @@ class PointCloudShape(_Base):
         return jnp.sqrt(jnp.min(_sq_dist(points[None], s), axis=-1))
 
 
-Shape = ExactShape | NCEDFShape | SphereShape | PointCloudShape
 REPRESENTATIONS = ("ncedf", "spheres", "pointcloud:P", "exact")
 
 
@@ -388,7 +400,3 @@ def _surface_coords(seed, per_link: int, spec: RobotSpec):
     keys = jax.random.split(jax.random.PRNGKey(seed), spec.n_links)
     return jnp.stack([sample_surface_coords(keys[i], per_link, 0.0, spec) for i in range(spec.n_links)])
 
-
-def surface_count(shape) -> int:
-    """Points per link of a point-cloud shape (0 for other representations)."""
-    return int(np.shape(shape.coords)[1]) if isinstance(shape, PointCloudShape) else 0

@@ -13,6 +13,7 @@ paper, the learning rate decays on a cosine schedule by default
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import os
 import sys
@@ -303,7 +304,7 @@ def main(argv=None) -> int:
         "dataset": dataclasses.asdict(data_cfg),
         "validation": dataclasses.asdict(val_cfg),
     }
-    recording = None
+    recording = contextlib.nullcontext()
     if args.record:
         from recorder import Recorder, RecorderError
 
@@ -314,20 +315,21 @@ def main(argv=None) -> int:
         except RecorderError as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2
-    start = time.perf_counter()
-    data = load_dataset(data_cfg, spec)
-    val = load_dataset(val_cfg, spec)
-    data_seconds = time.perf_counter() - start
-    domain = (data_cfg.box_min, data_cfg.box_max)
+    with recording as rec:
+        start = time.perf_counter()
+        data = load_dataset(data_cfg, spec)
+        val = load_dataset(val_cfg, spec)
+        data_seconds = time.perf_counter() - start
+        domain = (data_cfg.box_min, data_cfg.box_max)
 
-    def record(row):
-        if recording is not None:
-            recording.log_step(row["epoch"], float(row["epoch"]), metrics={k: float(v) for k, v in row.items() if k != "epoch"})
+        def record(row):
+            if rec is not None:
+                rec.log_step(row["epoch"], float(row["epoch"]), metrics={k: float(v) for k, v in row.items() if k != "epoch"})
 
-    model, history = train(model_cfg, cfg, data, val, spec, domain=domain, on_epoch=record)
-    train_seconds = time.perf_counter() - start - data_seconds
-    if recording is not None:
-        recording.finish({"outcome": "success", "steps": len(history)})
+        model, history = train(model_cfg, cfg, data, val, spec, domain=domain, on_epoch=record)
+        train_seconds = time.perf_counter() - start - data_seconds
+        if rec is not None:
+            rec.finish({"outcome": "success", "steps": len(history)})
     final = history[-1]
     metrics = {k: v for k, v in final.items() if k not in ("epoch", "seconds", "samples_per_second")}
     extra = {

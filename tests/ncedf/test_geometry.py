@@ -251,7 +251,6 @@ def test_gradients_finite_at_straight():
     np.testing.assert_allclose(np.linalg.norm(g[clear], axis=-1), 1.0, atol=1e-4)
 
 
-@pytest.mark.xfail(strict=True, reason="known defect: the distance's gradient w.r.t. arc lengths is 0 at exactly straight links")
 def test_distance_gradient_wrt_arc_at_straight_matches_fd():
     """The distance is differentiable in the bending vector at theta = 0; its true gradient is not zero there."""
     with jax.enable_x64(True):

@@ -9,8 +9,8 @@ import pytest
 
 from ncedf.broad_phase import rollout_min_distances_broad, rollout_min_distances_brute
 from ncedf.geometry import robot_signed_distance
-from ncedf.mppi import MPPI, MPPIConfig, limit_to_state_bounds, project_controls
-from ncedf.robot import InvalidStateError, RobotSpec, end_effector_pose, sample_arc_lengths
+from ncedf.mppi import MPPI, MPPIConfig, limit_to_state_bounds, mppi_step, project_controls
+from ncedf.robot import InvalidStateError, RobotSpec, end_effector_pose, project_state, sample_arc_lengths
 from ncedf.shapes import make_shape
 
 SPEC = RobotSpec(4)
@@ -91,10 +91,12 @@ def test_action_keeps_the_state_within_limits():
 
 
 def test_deterministic_and_no_recompilation(exact_mppi):
-    m = MPPI(SPEC, make_shape("spheres:2", SPEC), SMALL)
-    assert m._core is exact_mppi._core  # same robot and settings: one shared jitted core
     arc0 = np.asarray(SPEC.straight_state())
     goal = np.array([1.0, 0.5, 7.0])
+    exact_mppi.step(exact_mppi.init(jax.random.PRNGKey(0)), arc0, goal, None)
+    compiled = mppi_step._cache_size()
+    # Another controller with the same robot and settings shares the compiled program.
+    m = MPPI(SPEC, make_shape("spheres:2", SPEC), SMALL)
     a1, s1, i1 = m.step(m.init(jax.random.PRNGKey(3)), arc0, goal, np.ones((10, 3)) * 3)
     a2, s2, i2 = m.step(m.init(jax.random.PRNGKey(3)), arc0, goal, np.ones((10, 3)) * 3)
     np.testing.assert_array_equal(a1, a2)
@@ -107,14 +109,14 @@ def test_deterministic_and_no_recompilation(exact_mppi):
     for n in (0, 1, 17, 64):
         arc = np.asarray(sample_arc_lengths(jax.random.PRNGKey(n), SPEC, (4,)))
         _, st, info = m.step(st, arc, rng.normal(size=3) * 3, rng.normal(size=(n, 3)) * 3)
-    assert m._core._cache_size() == 1
+    assert mppi_step._cache_size() == compiled
     assert info.plan.shape == (SMALL.horizon + 1, 3)
     assert info.rollout_min_distance.shape == (SMALL.samples, SMALL.horizon)
     assert 1.0 <= float(info.ess) <= SMALL.samples
     # A pose goal is the second (and last) variant.
     m.step(st, arc0, np.eye(4), None)
     m.step(st, arc0, np.asarray(_pose(arc)), None)
-    assert m._core._cache_size() == 2
+    assert mppi_step._cache_size() == compiled + 1
 
 
 def test_empty_cloud_has_no_collision_cost(exact_mppi):
@@ -155,17 +157,22 @@ def _tip(arc):
     return _pose(jnp.asarray(arc))[:3, 3]
 
 
-def _drive(m, arc, goal, points, steps, key=0):
+_project = jax.jit(lambda a: project_state(a, SPEC))
+
+
+def _drive(m, arc, goal, points, steps, key=0, judge=None):
+    """Closed loop; returns the final goal distance and the smallest exact distance to
+    ``judge`` (default: the points the controller sees) over the run."""
     st = m.init(jax.random.PRNGKey(key))
-    arc = np.asarray(arc, np.float32)
+    arc = jnp.asarray(arc, jnp.float32)
     pts = None if points is None else np.asarray(points)
+    judge = pts if judge is None else np.asarray(judge)
     min_exact, dist = np.inf, np.inf
     for _ in range(steps):
         action, st, _ = m.step(st, arc, goal, pts)
-        arc = arc + np.asarray(action) * m.config.dt
-        arc[:, 2] = 3 * SPEC.length - arc[:, 0] - arc[:, 1]  # remove float drift of the sum
-        if pts is not None:
-            min_exact = min(min_exact, float(_clearance(jnp.asarray(pts), jnp.asarray(arc))))
+        arc = _project(arc + action * m.config.dt)  # remove float drift of the sum
+        if judge is not None:
+            min_exact = min(min_exact, float(_clearance(jnp.asarray(judge), arc)))
         dist = float(np.linalg.norm(np.asarray(_tip(jnp.asarray(arc))) - goal))
         if dist < 0.2:
             break
@@ -196,3 +203,6 @@ def test_avoids_obstacles_between_robot_and_goal():
     dist, min_exact = _drive(m, SPEC.straight_state(), goal, pts, steps=200)
     assert min_exact > 0.0
     assert dist < 0.2
+    # Control: the same controller blind to the ball drives the robot through it.
+    _, blind_min = _drive(m, SPEC.straight_state(), goal, None, steps=200, judge=pts)
+    assert blind_min < 0.0

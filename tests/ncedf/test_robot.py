@@ -23,9 +23,15 @@ from ncedf.robot import (
     config_to_arc_lengths,
     end_effector_pose,
     forward_kinematics,
+    frame_to_world,
     link_transform,
+    points_from_link_frames,
+    points_in_link_frames,
+    project_state,
     sample_arc_lengths,
+    state_violation,
     validate_state,
+    world_to_frame,
 )
 
 SPEC1 = RobotSpec(1)
@@ -609,3 +615,40 @@ def test_config_gradients_at_straight_are_finite():
     # config_to_arc_lengths gradient at theta = 0
     g = jax.jit(jax.grad(lambda t, p: jnp.sum(config_to_arc_lengths(t, p, SPEC1) ** 2), argnums=(0, 1)))(0.0, 0.3)
     assert all(np.isfinite(float(x)) for x in g)
+
+
+# ----------------------------------------------------------------------------
+# project_state and the frame transforms
+
+
+def test_project_state_is_the_nearest_valid_state_by_brute_force():
+    spec = RobotSpec(1)
+    # every valid link state on a 2 mm grid of (l1, l2), l3 = 3L - l1 - l2
+    g = np.arange(spec.l_min, spec.l_max + 1e-9, 0.002)
+    l1, l2 = np.meshgrid(g, g, indexing="ij")
+    grid = np.stack([l1.ravel(), l2.ravel(), 3 * spec.length - l1.ravel() - l2.ravel()], axis=-1)
+    grid = grid[(grid[:, 2] >= spec.l_min) & (grid[:, 2] <= spec.l_max)]
+    rng = np.random.default_rng(0)
+    x = spec.length + rng.normal(size=(40, 3)) * np.array([[0.05], [0.3], [1.0], [3.0]]).repeat(10, 0)
+    y = np.asarray(jax.jit(lambda a: project_state(a, spec))(jnp.asarray(x)))
+    for xi, yi in zip(x, y):
+        assert state_violation(yi[None], spec) is None
+        brute = np.min(np.linalg.norm(grid - xi, axis=1))
+        # nothing on the grid is nearer than the projection (up to the grid's resolution)
+        assert np.linalg.norm(yi - xi) <= brute + 1e-5
+        assert np.linalg.norm(yi - xi) >= brute - 0.002
+    valid = np.asarray(sample_arc_lengths(jax.random.PRNGKey(2), spec, (20,)))
+    np.testing.assert_allclose(np.asarray(project_state(jnp.asarray(valid), spec)), valid, atol=1e-6)
+
+
+def test_frame_transforms_invert_each_other_and_match_the_matrix_product():
+    frames = np.asarray(forward_kinematics(sample_arc_lengths(jax.random.PRNGKey(4), SPEC4, (SPEC4.n_links,)), SPEC4))
+    pts = np.random.default_rng(1).normal(size=(7, 3))
+    local = np.asarray(points_in_link_frames(jnp.asarray(pts), jnp.asarray(frames)))  # (M, P, 3)
+    homog = np.concatenate([pts, np.ones((7, 1))], axis=1)
+    expect = np.einsum("mij,pj->mpi", np.linalg.inv(frames[:-1]), homog)[..., :3]
+    np.testing.assert_allclose(local, expect, atol=1e-5)
+    back = np.asarray(points_from_link_frames(jnp.asarray(local), jnp.asarray(frames)))
+    np.testing.assert_allclose(back, np.broadcast_to(pts, back.shape), atol=1e-5)
+    one = np.asarray(world_to_frame(jnp.asarray(frames[2]), jnp.asarray(pts)))
+    np.testing.assert_allclose(frame_to_world(jnp.asarray(frames[2]), jnp.asarray(one)), pts, atol=1e-5)

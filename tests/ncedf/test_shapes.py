@@ -1,8 +1,6 @@
 """Shape representations against independent truths (closed-form geometry, dense samples)."""
 
 import functools
-from pathlib import Path
-
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -10,7 +8,7 @@ import pytest
 
 from ncedf.geometry import robot_signed_distance, robot_surface_points, sample_surface_coords
 from ncedf.robot import RobotSpec, sample_arc_lengths
-from ncedf.shapes import make_shape, sphere_cover_radius
+from ncedf.shapes import make_shape
 
 SPEC = RobotSpec(3)
 
@@ -62,10 +60,15 @@ def test_spheres_cover_the_surface_and_never_exceed_exact():
 
 
 def test_sphere_radius_is_tight_for_a_straight_link():
-    # Straight link: the worst point is on the surface midway between two centres.
+    # Straight link: the surface point midway between the first two centres is covered exactly
+    # at the rim of the spheres, so no smaller radius covers the body.
     n = 5
-    r = float(sphere_cover_radius(0.0, SPEC, n))
-    assert r == pytest.approx(np.hypot(SPEC.radius, SPEC.length / (2 * n)), rel=1e-6)
+    spec = RobotSpec(1)
+    shape = make_shape(f"spheres:{n}", spec)
+    arc = spec.straight_state()
+    point = jnp.array([[spec.radius, 0.0, spec.length / n]])
+    assert float(robot_signed_distance(point, arc, spec)[0]) == pytest.approx(0.0, abs=1e-6)  # on the surface
+    assert float(shape.distances(point, arc)[0]) == pytest.approx(0.0, abs=1e-6)  # on a sphere's rim
 
 
 def test_pointcloud_converges_to_exact():
@@ -132,18 +135,10 @@ def test_unknown_or_bad_names(name):
         make_shape(name, SPEC)
 
 
-def _model_or_skip():
-    from ncedf import model as model_mod
-
-    if not Path(str(model_mod.DEFAULT_MODEL) + ".msgpack").exists() and not any(
-        Path(model_mod.WEIGHTS_DIR).glob("*.msgpack")
-    ):
-        pytest.skip("the shipped N-CEDF weights have not landed yet")
-    return model_mod.load_model()
-
-
 def test_ncedf_agrees_with_exact_within_model_error():
-    model = _model_or_skip()
+    from ncedf.model import load_model
+
+    model = load_model()
     shape = make_shape("ncedf", SPEC, model=model)
     arcs = _arcs(7, 3)
     errs = []
