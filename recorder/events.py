@@ -12,6 +12,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from recorder.schema import STATE_FIELDS, sim_time_ns
+from recorder.style import COLOR_MAP_MARGIN, clearance_colors
 
 
 @dataclass(frozen=True)
@@ -40,6 +41,8 @@ class Step:
     goal_rotation: np.ndarray | None = None  # (3, 3) float64, only when a pose was given
     plan: np.ndarray | None = None  # (H, 3) float32
     state: dict[str, np.ndarray] | None = None  # arc_lengths (M,3), theta (M,), phi (M,), ee_position (3,); float64
+    link_clearance: np.ndarray | None = None  # (M,) float64, metres
+    link_colors: np.ndarray | None = None  # (M, 3) uint8, `style.clearance_colors` of link_clearance
 
     @property
     def sim_time(self) -> float:
@@ -89,8 +92,13 @@ def make_step(
     goal=None,
     plan=None,
     state=None,
+    link_clearance=None,
+    safety_margin: float | None = None,
 ) -> Step:
-    """Convert and check the arguments of `Recorder.log_step` (see there for shapes)."""
+    """Convert and check the arguments of `Recorder.log_step` (see there for shapes).
+
+    `safety_margin` (m) sets the colour map of `link_clearance` (`style.COLOR_MAP_MARGIN` if None).
+    """
     clean_metrics = {}
     for key, value in metrics.items():
         if key in ("step", "sim_time") or not key.isidentifier():
@@ -125,17 +133,42 @@ def make_step(
         if triangles.ndim != 2 or triangles.shape[1] != 3:
             raise ValueError(f"mesh_triangles must have shape (F, 3), got {triangles.shape}")
 
+    mesh = None if mesh_vertices is None else _points("mesh_vertices", mesh_vertices)
+    lines = None if backbone is None else _polylines(backbone)
+    clearance = colors = None
+    if link_clearance is not None:
+        clearance = _link_clearance(link_clearance, mesh, lines, clean_state)
+        colors = clearance_colors(clearance, COLOR_MAP_MARGIN if safety_margin is None else safety_margin)
+
     return Step(
         step=int(step),
         sim_time_ns=sim_time_ns(sim_time),
         metrics=clean_metrics,
-        mesh_vertices=None if mesh_vertices is None else _points("mesh_vertices", mesh_vertices),
+        mesh_vertices=mesh,
         mesh_triangles=triangles,
-        backbone=None if backbone is None else _polylines(backbone),
+        backbone=lines,
         obstacle_points=None if obstacle_points is None else _points("obstacle_points", obstacle_points),
         obstacle_shapes=None if obstacle_shapes is None else _shapes(obstacle_shapes),
         goal_position=goal_position,
         goal_rotation=goal_rotation,
         plan=None if plan is None else _points("plan", plan),
         state=clean_state,
+        link_clearance=clearance,
+        link_colors=colors,
     )
+
+
+def _link_clearance(value: Any, mesh: np.ndarray | None, lines, state: dict | None) -> np.ndarray:
+    """(M,) clearances, checked against the links of the mesh (V = M x vertices per link), backbone and state."""
+    d = np.asarray(value, dtype=np.float64)
+    if d.ndim != 1 or d.size == 0:
+        raise ValueError(f"link_clearance must have shape (M,) with M >= 1 links, got {d.shape}")
+    m = d.shape[0]
+    if mesh is not None and mesh.shape[0] % m:
+        raise ValueError(f"mesh_vertices ({mesh.shape[0]}) must split into {m} links of equal vertex counts "
+                         "to colour them by link_clearance")
+    if lines is not None and len(lines) != m:
+        raise ValueError(f"backbone has {len(lines)} polylines, link_clearance {m} links: give one per link")
+    if state is not None and state["theta"].shape[0] != m:
+        raise ValueError(f"link_clearance has {m} links, the state {state['theta'].shape[0]}")
+    return d

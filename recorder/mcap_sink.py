@@ -2,8 +2,12 @@
 
 Topics (= `recorder.schema` names):
 - `/world/robot/mesh`, `/world/robot/backbone`, `/world/obstacles/shapes`, `/world/plan`: foxglove.SceneUpdate
-  (frame "world"); `/world/obstacles/points`: foxglove.PointCloud (x, y, z float32);
-  `/world/goal`: foxglove.FrameTransform world -> goal; `/log`: foxglove.Log;
+  (frame "world"); with link clearances the mesh has per-vertex colours and each backbone line its
+  link's colour (`recorder.style`); the plan is a thick line strip with a small sphere at each knot;
+  `/world/obstacles/points`: foxglove.PointCloud (x, y, z float32);
+  `/world/goal`: foxglove.FrameTransform world -> goal; with a goal tolerance, `/world/goal_marker`:
+  foxglove.SceneUpdate with the goal region (a translucent sphere of that radius) and, for a pose
+  goal, an arrow along its z axis ending at the goal; `/log`: foxglove.Log;
 - `/metrics`, `/state`, `/outcome`: JSON with the schemas of `recorder.schema`;
 - run metadata: MCAP metadata record `run` ({key: JSON text}).
 Every message's log_time is the step's sim_time in ns (no wall clock), so a run is reproducible.
@@ -21,19 +25,31 @@ from foxglove import channels as fc
 from foxglove import messages as fm
 from foxglove.mcap import MCAPWriteOptions
 
-from recorder import schema
+from recorder import schema, style
 from recorder.events import Step
-from recorder.scene_proto import (ENTITY_LINES, ENTITY_TRIANGLES, LINE_POINTS, TRIANGLE_POINTS, encode_indices,
-                                  encode_points, encode_scene_update)
+from recorder.scene_proto import (ENTITY_LINES, ENTITY_SPHERES, ENTITY_TRIANGLES, LINE_POINTS, TRIANGLE_COLORS,
+                                  TRIANGLE_POINTS, encode_colors, encode_indices, encode_points, encode_scene_update)
 
 _FRAME = "world"
 # zstd level 1 in the logging thread: measured on 7-link runs, 1.5 ms/step instead of 2.5 ms for the
 # default level, for 10 % larger files (bench/recorder.py).
 _WRITE_OPTIONS = MCAPWriteOptions(compression_level=1, compression_threads=0)
-_MESH_COLOR = fm.Color(r=0.75, g=0.75, b=0.8, a=1.0)
+
+
+def _color(rgba) -> fm.Color:
+    """RGB(A) bytes -> foxglove Color (components in [0, 1])."""
+    r, g, b, a = (*(c / 255 for c in rgba), 1.0)[:4]
+    return fm.Color(r=r, g=g, b=b, a=a)
+
+
+_MESH_COLOR = _color(style.ROBOT_COLOR)
 _LINE_COLOR = fm.Color(r=0.1, g=0.3, b=0.9, a=1.0)
-_PLAN_COLOR = fm.Color(r=0.1, g=0.8, b=0.2, a=1.0)
-_OBSTACLE_COLOR = fm.Color(r=0.9, g=0.3, b=0.2, a=0.5)
+_PLAN_COLOR = _color(style.PLAN_COLOR)
+_OBSTACLE_COLOR = _color(style.OBSTACLE_COLOR)
+_GOAL_COLOR = _color(style.GOAL_COLOR)
+_REGION_COLOR = _color((*style.GOAL_COLOR, style.GOAL_REGION_ALPHA))
+#: Turns foxglove's arrow direction (+x of its pose) into +z: a rotation by -90 degrees about y.
+_X_TO_Z = np.array([[0.0, 0.0, -1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]])
 _LEVELS = {"debug": fm.LogLevel.Debug, "info": fm.LogLevel.Info, "warning": fm.LogLevel.Warning,
            "warn": fm.LogLevel.Warning, "error": fm.LogLevel.Error, "critical": fm.LogLevel.Fatal}
 
@@ -71,18 +87,53 @@ def _entity(entity_id: str, ns: int) -> fm.SceneEntity:
     return fm.SceneEntity(id=entity_id, frame_id=_FRAME, timestamp=_timestamp(ns))
 
 
-def _lines(polylines, ns: int, entity_id: str, color: fm.Color, thickness: float) -> bytes:
-    """A SceneUpdate with one line strip per (K, 3) polyline."""
-    head = fm.LinePrimitive(type=fm.LinePrimitiveLineType.LineStrip, color=color, thickness=thickness).encode()
+def _lines(polylines, ns: int, entity_id: str, color: fm.Color, thickness: float, colors=None,
+           extra: tuple = ()) -> bytes:
+    """A SceneUpdate with one line strip per (K, 3) polyline, in `color` or its own of `colors` (RGB bytes);
+    `extra`: more (field, [bytes]) primitives of the entity."""
+    line = fm.LinePrimitiveLineType.LineStrip
+    if colors is None:
+        heads = [fm.LinePrimitive(type=line, color=color, thickness=thickness).encode()] * len(polylines)
+    else:
+        heads = [fm.LinePrimitive(type=line, color=_color(c), thickness=thickness).encode() for c in colors.tolist()]
     return encode_scene_update(_entity(entity_id, ns),
-                               [(ENTITY_LINES, [head, encode_points(p, LINE_POINTS)]) for p in polylines])
+                               [(ENTITY_LINES, [h, encode_points(p, LINE_POINTS)]) for h, p in zip(heads, polylines)]
+                               + list(extra))
 
 
-def _mesh(vertices: np.ndarray, indices: bytes, ns: int) -> bytes:
-    """A SceneUpdate with the robot mesh as one triangle list (indices from `encode_indices`)."""
-    head = fm.TriangleListPrimitive(color=_MESH_COLOR).encode()
-    return encode_scene_update(_entity("robot", ns),
-                               [(ENTITY_TRIANGLES, [head, encode_points(vertices, TRIANGLE_POINTS), indices])])
+def _mesh(vertices: np.ndarray, indices: bytes, ns: int, link_colors: np.ndarray | None) -> bytes:
+    """A SceneUpdate with the robot mesh as one triangle list (indices from `encode_indices`): in the robot's
+    colour, or with each link's vertices in its colour of `link_colors` (M, 3)."""
+    if link_colors is None:
+        parts = [fm.TriangleListPrimitive(color=_MESH_COLOR).encode()]
+    else:
+        parts = [encode_colors(link_colors, TRIANGLE_COLORS, repeat=vertices.shape[0] // link_colors.shape[0])]
+    parts += [encode_points(vertices, TRIANGLE_POINTS), indices]
+    return encode_scene_update(_entity("robot", ns), [(ENTITY_TRIANGLES, parts)])
+
+
+def _knots(plan: np.ndarray) -> list:
+    """A sphere at each knot of the plan, as SceneEntity.spheres primitives."""
+    size = _vector3((2 * style.PLAN_KNOT_RADIUS,) * 3)
+    return [(ENTITY_SPHERES, [fm.SpherePrimitive(pose=fm.Pose(position=_vector3(p)), size=size,
+                                                 color=_PLAN_COLOR).encode()]) for p in plan]
+
+
+def _goal_marker(position: np.ndarray, rotation: np.ndarray | None, tolerance: float, ns: int) -> fm.SceneUpdate:
+    """The goal region (sphere of radius `tolerance`) and, for a pose, the approach arrow along its z axis."""
+    region = fm.SpherePrimitive(pose=fm.Pose(position=_vector3(position)), size=_vector3((2 * tolerance,) * 3),
+                                color=_REGION_COLOR)
+    arrows = []
+    if rotation is not None:
+        length = style.APPROACH_LENGTH * tolerance
+        tail = position - length * rotation[:, 2]
+        d = 2 * style.APPROACH_RADIUS
+        head = min(3 * d, length / 2)
+        pose = fm.Pose(position=_vector3(tail), orientation=_quaternion(rotation @ _X_TO_Z))
+        arrows.append(fm.ArrowPrimitive(pose=pose, shaft_length=length - head, shaft_diameter=d, head_length=head,
+                                        head_diameter=2 * d, color=_GOAL_COLOR))
+    entity = fm.SceneEntity(id="goal", frame_id=_FRAME, timestamp=_timestamp(ns), spheres=[region], arrows=arrows)
+    return fm.SceneUpdate(entities=[entity])
 
 
 def _shapes(sh, ns: int) -> fm.SceneUpdate:
@@ -113,9 +164,10 @@ class McapSink:
     """Writes one run to `path` (.mcap) with its own foxglove `Context` (so parallel runs never mix).
 
     mesh_every: write the robot mesh on steps with `step % mesh_every == 0` (it is most of the cost).
+    goal_tolerance: metres; when given, the goal region is written to `/world/goal_marker`.
     """
 
-    def __init__(self, path: Path, *, overwrite: bool, mesh_every: int = 1):
+    def __init__(self, path: Path, *, overwrite: bool, mesh_every: int = 1, goal_tolerance: float | None = None):
         self._ctx = foxglove.Context()
         self._writer = foxglove.open_mcap(str(path), allow_overwrite=overwrite, context=self._ctx,
                                          writer_options=_WRITE_OPTIONS)
@@ -130,6 +182,8 @@ class McapSink:
         self._shapes = fc.SceneUpdateChannel(schema.OBSTACLE_SHAPES, context=ctx)
         self._points = fc.PointCloudChannel(schema.OBSTACLE_POINTS, context=ctx)
         self._goal = fc.FrameTransformChannel(schema.GOAL, context=ctx)
+        self._goal_tolerance = goal_tolerance
+        self._goal_marker = None if goal_tolerance is None else fc.SceneUpdateChannel(schema.GOAL_MARKER, context=ctx)
         self._log = fc.LogChannel(schema.LOG, context=ctx)
         self._metrics = foxglove.Channel(schema.METRICS, schema=schema.METRICS_SCHEMA, context=ctx)
         self._state = foxglove.Channel(schema.STATE, schema=schema.STATE_SCHEMA, context=ctx)
@@ -147,9 +201,10 @@ class McapSink:
         if s.mesh_vertices is not None and s.step % self._mesh_every == 0:
             if self._indices is None:
                 self._indices = encode_indices(s.mesh_triangles)
-            self._mesh.log(_mesh(s.mesh_vertices, self._indices, ns), log_time=ns)
+            self._mesh.log(_mesh(s.mesh_vertices, self._indices, ns, s.link_colors), log_time=ns)
         if s.backbone is not None:
-            self._backbone.log(_lines(s.backbone, ns, "backbone", _LINE_COLOR, 0.004), log_time=ns)
+            self._backbone.log(_lines(s.backbone, ns, "backbone", _LINE_COLOR, 2 * style.BACKBONE_RADIUS,
+                                      s.link_colors), log_time=ns)
         if s.obstacle_points is not None:
             self._points.log(_point_cloud(s.obstacle_points, ns), log_time=ns)
         if s.obstacle_shapes is not None:
@@ -158,8 +213,12 @@ class McapSink:
             tf = fm.FrameTransform(timestamp=_timestamp(ns), parent_frame_id=_FRAME, child_frame_id="goal",
                                    translation=_vector3(s.goal_position), rotation=_quaternion(s.goal_rotation))
             self._goal.log(tf, log_time=ns)
+            if self._goal_marker is not None:
+                self._goal_marker.log(_goal_marker(s.goal_position, s.goal_rotation, self._goal_tolerance, ns),
+                                      log_time=ns)
         if s.plan is not None:
-            self._plan.log(_lines([s.plan], ns, "plan", _PLAN_COLOR, 0.004), log_time=ns)
+            self._plan.log(_lines([s.plan], ns, "plan", _PLAN_COLOR, 2 * style.PLAN_RADIUS, extra=_knots(s.plan)),
+                           log_time=ns)
         head = {"step": s.step, "sim_time": s.sim_time}
         if s.state is not None:
             body = {k: s.state[k].tolist() for k in schema.STATE_FIELDS}

@@ -7,9 +7,9 @@ id, frame, timestamp, colour, line type) are still encoded by foxglove-sdk: prot
 serialised fields be concatenated, so the result is exactly a `foxglove.SceneUpdate` with one
 `SceneEntity` holding the given primitives.
 
-Field numbers (foxglove schemas): SceneUpdate.entities = 2; SceneEntity.lines = 11, .triangles = 12;
-LinePrimitive.points = 5; TriangleListPrimitive.points = 2, .indices = 5 (packed fixed32);
-Point3 x = 1, y = 2, z = 3 (double).
+Field numbers (foxglove schemas): SceneUpdate.entities = 2; SceneEntity.spheres = 9, .lines = 11,
+.triangles = 12; LinePrimitive.points = 5; TriangleListPrimitive.points = 2, .colors = 4, .indices = 5
+(packed fixed32); Point3 x = 1, y = 2, z = 3 (double); Color r = 1, g = 2, b = 3, a = 4 (double).
 """
 
 from __future__ import annotations
@@ -17,14 +17,20 @@ from __future__ import annotations
 import numpy as np
 from foxglove import messages as fm
 
-ENTITY_LINES, ENTITY_TRIANGLES = 11, 12
-LINE_POINTS, TRIANGLE_POINTS, TRIANGLE_INDICES = 5, 2, 5
+ENTITY_SPHERES, ENTITY_LINES, ENTITY_TRIANGLES = 9, 11, 12
+LINE_POINTS, TRIANGLE_POINTS, TRIANGLE_COLORS, TRIANGLE_INDICES = 5, 2, 4, 5
 _LEN = 2  # protobuf wire type "length-delimited"
 _F64 = 1  # wire type "64-bit"
 
 # One Point3 inside a repeated field: tag, length 27, then x, y, z each as tag + 8 bytes.
 _POINT_DTYPE = np.dtype(
     [("tag", "u1"), ("len", "u1"), ("tx", "u1"), ("x", "<f8"), ("ty", "u1"), ("y", "<f8"), ("tz", "u1"), ("z", "<f8")]
+)
+
+# One Color inside a repeated field: tag, length 36, then r, g, b, a each as tag + 8 bytes.
+_COLOR_DTYPE = np.dtype(
+    [("tag", "u1"), ("len", "u1"), ("tr", "u1"), ("r", "<f8"), ("tg", "u1"), ("g", "<f8"), ("tb", "u1"), ("b", "<f8"),
+     ("ta", "u1"), ("a", "<f8")]
 )
 
 
@@ -53,6 +59,18 @@ def encode_points(points: np.ndarray, field: int) -> memoryview:
     buf["tx"], buf["ty"], buf["tz"] = 1 << 3 | _F64, 2 << 3 | _F64, 3 << 3 | _F64
     buf["x"], buf["y"], buf["z"] = p[:, 0], p[:, 1], p[:, 2]
     return buf.view(np.uint8).data  # a byte view: no copy, len() in bytes
+
+
+def encode_colors(rgb: np.ndarray, field: int, repeat: int = 1, alpha: float = 1.0) -> memoryview:
+    """RGB bytes (N, 3) -> the bytes of a repeated Color field with field number `field`, each colour
+    `repeat` times in a row (N * repeat colours; e.g. one per vertex of each link)."""
+    c = np.asarray(rgb, dtype=np.float64) / 255.0
+    buf = np.empty(c.shape[0], dtype=_COLOR_DTYPE)
+    buf["tag"] = field << 3 | _LEN
+    buf["len"] = 36
+    buf["tr"], buf["tg"], buf["tb"], buf["ta"] = 1 << 3 | _F64, 2 << 3 | _F64, 3 << 3 | _F64, 4 << 3 | _F64
+    buf["r"], buf["g"], buf["b"], buf["a"] = c[:, 0], c[:, 1], c[:, 2], alpha
+    return np.repeat(buf, repeat).view(np.uint8).data
 
 
 def encode_indices(triangles: np.ndarray) -> bytes:

@@ -20,6 +20,9 @@ BACKBONE = "/world/robot/backbone"
 OBSTACLE_POINTS = "/world/obstacles/points"
 OBSTACLE_SHAPES = "/world/obstacles/shapes"
 GOAL = "/world/goal"
+#: The goal region (a sphere of the goal tolerance) and, for a pose goal, its approach axis; in world
+#: coordinates. Logged when the recorder knows the goal tolerance.
+GOAL_MARKER = "/world/goal_marker"
 PLAN = "/world/plan"
 STATE = "/state"
 METRICS = "/metrics"
@@ -27,6 +30,8 @@ OUTCOME = "/outcome"
 LOG = "/log"
 #: Rerun only: the safety margin, logged per step so it draws as a line beside the distances.
 SAFETY_MARGIN = "/reference/safety_margin"
+#: Rerun only: the goal tolerance, logged per step so it draws as a line beside the goal distance.
+GOAL_TOLERANCE = "/reference/goal_tolerance"
 
 #: Rerun timelines (MCAP messages carry both inside their JSON body).
 STEP_TIMELINE = "step"
