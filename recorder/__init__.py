@@ -4,10 +4,12 @@ The recorder takes arrays and names only (it imports nothing from `ncedf` or `sc
 
     from recorder import Recorder, load_run, load_runs
 
-    with Recorder("out/run-0", run_meta, safety_margin=0.02) as rec:      # out/run-0.rrd + out/run-0.mcap
+    with Recorder("out/run-0", run_meta, safety_margin=0.05, goal_tolerance=0.2,
+                  viewer=False) as rec:                                     # out/run-0.rrd + out/run-0.mcap
         for k in range(steps):
             rec.log_step(k, k * dt, metrics={...}, mesh_vertices=V, mesh_triangles=F, backbone=B,
-                         obstacle_points=P, obstacle_shapes=S, goal=g, plan=H, state={...})
+                         obstacle_points=P, obstacle_shapes=S, goal=g, plan=H, state={...},
+                         link_clearance=d)
         rec.finish({"outcome": "success", "steps": steps, "reach_step": r,
                     "min_true_distance": d, "first_collision_step": None})
     run = load_run("out/run-0.mcap")          # Run(meta, metrics, state, outcome, complete)
@@ -20,20 +22,30 @@ Where each event goes (names in `recorder.schema`; MCAP topics = Rerun entity pa
 | event | Rerun (.rrd) | MCAP (.mcap) |
 | --- | --- | --- |
 | `/run` metadata | recording property `run`, one key per metadata key, value = JSON text | metadata record `run`, same {key: JSON text} |
-| `/world/robot/mesh` | Mesh3D: triangle indices static (once), vertex positions every step | foxglove.SceneUpdate, one triangle list (every `mcap_mesh_every`-th step) |
-| `/world/robot/backbone` | LineStrips3D, one strip per link | foxglove.SceneUpdate, one line strip per link |
+| `/world/robot/mesh` | Mesh3D: triangle indices static (once), vertex positions (+ colours) every step | foxglove.SceneUpdate, one triangle list, per-vertex colours with clearances (every `mcap_mesh_every`-th step) |
+| `/world/robot/backbone` | LineStrips3D, one strip per link (+ colours) | foxglove.SceneUpdate, one line strip per link, in its link's colour |
 | `/world/obstacles/points` | Points3D | foxglove.PointCloud (x, y, z float32) |
 | `/world/obstacles/shapes` | `.../spheres` Ellipsoids3D, `.../boxes` Boxes3D | foxglove.SceneUpdate (spheres, cubes) |
 | `/world/goal` | Transform3D + a point at its origin | foxglove.FrameTransform world -> goal |
-| `/world/plan` | LineStrips3D | foxglove.SceneUpdate line strip |
+| `/world/goal_marker` (with `goal_tolerance`) | `.../region` Ellipsoids3D (sphere of the tolerance), `.../approach` Arrows3D (pose goals) | foxglove.SceneUpdate (sphere, arrow) |
+| `/world/plan` | LineStrips3D + Points3D at the knots | foxglove.SceneUpdate line strip + a sphere per knot |
 | `/state` | Scalars `/state/arc_lengths` (3M), `/state/theta`, `/state/phi` (M), `/state/ee_position` (3) | JSON `ncedf.State` |
 | `/metrics` | Scalars `/metrics/<name>` | JSON `ncedf.Metrics` (NaN as null) |
 | `/outcome` | recording property `outcome` (JSON text per field) | JSON `ncedf.Outcome`, the last message |
 | `/log` text | TextLog | foxglove.Log |
 
 Rerun: timelines `step` and `sim_time` (wall clock off), a stored default blueprint (3D view of
-`/world`; distances with the safety margin `/reference/safety_margin`; solver time; all metrics; log).
+`/world` on a dark background; distances with the safety margin `/reference/safety_margin` and the
+goal tolerance `/reference/goal_tolerance`; solver time; all metrics; log).
 MCAP: log_time = sim_time in ns. Scalars are float64 in both formats; `sim_time` is kept to 1 ns.
+
+Display (`recorder.style`): links coloured by `link_clearance` from red (collision) through orange
+(at the safety margin) and yellow to green and blue (1 m and more); the plan a thick cyan line with
+its knots; the observed points white, 4 cm; the goal magenta, with a translucent sphere of the goal
+tolerance and, for a pose goal, an arrow along its approach (z) axis.
+
+Live: `viewer=True` (or a URL) also streams the run to a Rerun Viewer (`recorder.viewer`); the
+files are written the same, and without a viewer one `ViewerWarning` says why.
 
 Reproducibility: the Rerun recording id is derived from app id + metadata and nothing wall-clock
 is logged, yet rerun-sdk 0.41 stamps every chunk and row with a time-based id, so two .rrd files of
@@ -59,6 +71,7 @@ CLI: `python -m recorder.inspect FILE...`; `python -m recorder.synthetic OUT` wr
 from recorder.errors import RecorderError, RecordingInterrupted
 from recorder.read import IncompleteRecordingWarning, Run, load_run, load_runs
 from recorder.recorder import Recorder
+from recorder.viewer import ViewerWarning
 
-__all__ = ["Recorder", "RecorderError", "RecordingInterrupted", "IncompleteRecordingWarning", "Run", "load_run",
-           "load_runs"]
+__all__ = ["Recorder", "RecorderError", "RecordingInterrupted", "IncompleteRecordingWarning", "Run", "ViewerWarning",
+           "load_run", "load_runs"]

@@ -14,7 +14,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from recorder import schema
+from recorder import schema, viewer as live_viewer
 from recorder.errors import RecorderError, RecordingInterrupted
 from recorder.events import make_step
 from recorder.mcap_sink import McapSink
@@ -70,7 +70,15 @@ class Recorder:
         mcap_mesh_every: write the robot mesh to the MCAP on steps where `step % mcap_mesh_every == 0`
             (the mesh is most of the MCAP cost; Rerun logs it every step).
         flush_every: flush both files every this many steps; a SIGKILL loses at most these.
-        safety_margin: metres; drawn as a line beside the distances in Rerun.
+        safety_margin: metres; drawn as a line beside the distances in Rerun, and the margin of the
+            clearance colour map (`recorder.style`).
+        goal_tolerance: metres; the goal is drawn as a translucent sphere of this radius (with the
+            approach axis of a pose goal) in both formats, and as a line beside the distances in Rerun.
+            Kept as `self.goal_tolerance`.
+        viewer: also stream the run live to a Rerun Viewer: True (one listening on this machine's
+            default port, else a newly started one) or a URL "rerun+http://HOST:PORT/proxy". The files
+            are written the same either way; without a reachable viewer a `ViewerWarning` says why
+            and the run is recorded to files only (see `recorder.viewer`).
         app_id: Rerun application id.
 
     Files are opened at construction (after the path checks); SIGINT/SIGTERM handlers are installed
@@ -90,10 +98,15 @@ class Recorder:
         mcap_mesh_every: int = MCAP_MESH_EVERY,
         flush_every: int = 50,
         safety_margin: float | None = None,
+        goal_tolerance: float | None = None,
+        viewer: bool | str = False,
         app_id: str = "ncedf",
     ):
         if mcap_mesh_every < 1 or flush_every < 1:
             raise ValueError("mcap_mesh_every and flush_every must be >= 1")
+        for name, value in (("safety_margin", safety_margin), ("goal_tolerance", goal_tolerance)):
+            if value is not None and not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be a finite distance >= 0 in metres, got {value!r}")
         reserved = set(run_meta) & (set(schema.RUN_TABLE_COLUMNS) - {"run_id"})
         if reserved:
             raise ValueError(f"run_meta keys {sorted(reserved)} are reserved for the run table")
@@ -104,6 +117,8 @@ class Recorder:
         check_writable(self.paths, overwrite)
 
         self.run_meta = meta
+        self.safety_margin = safety_margin
+        self.goal_tolerance = goal_tolerance
         self._flush_every = flush_every
         self._triangles: np.ndarray | None = None
         self._steps = 0
@@ -111,25 +126,36 @@ class Recorder:
         self._min_true = math.inf
         self._signal: int | None = None
         self._previous_handlers: dict[int, Any] = {}
-        self._sinks = self._open_sinks(overwrite, app_id, safety_margin, mcap_mesh_every)
+        live = live_viewer.resolve(viewer)
+        self._sinks = self._open_sinks(overwrite, app_id, mcap_mesh_every, live)
         for sink in self._sinks:
             sink.log_run(meta)
         self._install_handlers()
 
-    def _open_sinks(self, overwrite: bool, app_id: str, safety_margin: float | None, mcap_mesh_every: int) -> list:
-        sinks = []
+    def _open_sinks(self, overwrite: bool, app_id: str, mcap_mesh_every: int,
+                    live: live_viewer.ViewerTarget | None) -> list:
+        """The sinks of `self.paths`; the live viewer goes with the Rerun sink (one without a file if no .rrd)."""
+        rerun_paths = [self.paths.get("rrd")] if "rrd" in self.paths or live is not None else []
+        sinks, path = [], None
         try:
-            for fmt, path in self.paths.items():
-                if fmt == "rrd":
-                    sinks.append(RerunSink(path, app_id=app_id, recording_id=recording_id(app_id, self.run_meta),
-                                           run_name=str(self.run_meta["run_id"]), safety_margin=safety_margin))
-                else:
-                    sinks.append(McapSink(path, overwrite=overwrite, mesh_every=mcap_mesh_every))
+            for path in rerun_paths:
+                sinks.append(RerunSink(path, app_id=app_id, recording_id=recording_id(app_id, self.run_meta),
+                                       run_name=str(self.run_meta["run_id"]), safety_margin=self.safety_margin,
+                                       goal_tolerance=self.goal_tolerance, live=live))
+            if "mcap" in self.paths:
+                path = self.paths["mcap"]
+                sinks.append(McapSink(path, overwrite=overwrite, mesh_every=mcap_mesh_every,
+                                      goal_tolerance=self.goal_tolerance))
         except Exception as exc:
             for sink in sinks:
                 sink.close(schema.normalise_outcome({"outcome": "interrupted"}))
-            raise RecorderError(f"cannot open {path}: {exc}") from exc
+            raise RecorderError(f"cannot open {path or 'the viewer stream'}: {exc}") from exc
         return sinks
+
+    @property
+    def live(self) -> bool:
+        """Whether the run is being streamed to a viewer (False after a `ViewerWarning`)."""
+        return any(isinstance(sink, RerunSink) and sink.live for sink in self._sinks)
 
     # ------------------------------------------------------------ signals
     def _install_handlers(self) -> None:
@@ -169,6 +195,7 @@ class Recorder:
         goal=None,
         plan=None,
         state=None,
+        link_clearance=None,
     ) -> None:
         """Record one step. Arrays may be numpy or JAX; units metres, radians, seconds.
 
@@ -182,14 +209,20 @@ class Recorder:
             backbone: (M, K, 3) or a list of M (K_i, 3) polylines, one per link.
             obstacle_points: (P, 3) observed cloud. obstacle_shapes: {"spheres": {"centers": (S, 3),
                 "radii": (S,)}, "boxes": {"centers": (B, 3), "sizes": (B, 3)}}.
-            goal: position (3,) or pose (4, 4). plan: (H, 3) planned end-effector path.
+            goal: position (3,) or pose (4, 4) (its z axis is the approach axis).
+            plan: (H + 1, 3) planned end-effector path.
             state: {"arc_lengths": (M, 3), "theta": (M,), "phi": (M,), "ee_position": (3,)}.
+            link_clearance: (M,) metres, the exact distance of each link to the nearest obstacle (negative:
+                penetration). Colours each link (its V / M mesh vertices, V the mesh's vertex count, and its
+                backbone polyline, one per link) by `recorder.style.clearance_colors` with the recorder's
+                safety_margin (must then be > 0; None: `style.COLOR_MAP_MARGIN`). Not read back by `load_run`.
         """
         if self.closed:
             raise RecorderError(f"recorder for {self._describe()} is closed")
         s = make_step(step, sim_time, metrics, mesh_vertices=mesh_vertices, mesh_triangles=mesh_triangles,
                       backbone=backbone, obstacle_points=obstacle_points, obstacle_shapes=obstacle_shapes,
-                      goal=goal, plan=plan, state=state)
+                      goal=goal, plan=plan, state=state, link_clearance=link_clearance,
+                      safety_margin=self.safety_margin)
         if self._steps and s.step <= self._last[0]:
             raise ValueError(f"steps must increase: step {s.step} after step {self._last[0]}")
         if s.mesh_vertices is not None:
