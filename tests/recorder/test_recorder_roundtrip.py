@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import subprocess
 import sys
 from pathlib import Path
@@ -11,8 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import rerun.chunk as rc
-from mcap.reader import make_reader
-from mcap_protobuf.decoder import DecoderFactory
+from recorder_readback import mcap_messages, rrd_columns, xyz
 
 from recorder import Recorder, load_run, load_runs, schema
 from recorder.synthetic import SyntheticRun
@@ -72,18 +70,9 @@ def test_both_formats_give_equal_tables(recorded):
     assert (a.meta, a.outcome) == (b.meta, b.outcome)
 
 
-def _rrd_columns(path: Path) -> dict[tuple[str, str], list]:
-    cols = {}
-    for chunk in rc.RrdReader(path).stream().to_chunks():
-        batch = chunk.to_record_batch()
-        for name in batch.schema.names:
-            cols.setdefault((chunk.entity_path, name), []).extend(batch.column(name).to_pylist())
-    return cols
-
-
 def test_rrd_display_entities_hold_what_was_sent(recorded):
     out, run, sent = recorded
-    cols = _rrd_columns(out.with_suffix(".rrd"))
+    cols = rrd_columns(out.with_suffix(".rrd"))
 
     def per_step(entity, component):
         return [np.asarray(v, dtype=np.float64) for v in cols[(entity, component)]]
@@ -117,36 +106,18 @@ def test_rrd_display_entities_hold_what_was_sent(recorded):
     assert [b.application_id for b in reader.blueprints()] == ["ncedf"]  # the stored default blueprint
 
 
-def _mcap_messages(path: Path) -> dict[str, list]:
-    """{topic: [(log_time, message)]}: protobuf decoded, JSON parsed."""
-    msgs: dict[str, list] = {}
-    factory = DecoderFactory()
-    with open(path, "rb") as f:
-        for schema_, channel, message in make_reader(f).iter_messages():
-            if channel.message_encoding == "json":
-                decoded = json.loads(message.data)
-            else:
-                decoded = factory.decoder_for(channel.message_encoding, schema_)(message.data)
-            msgs.setdefault(channel.topic, []).append((message.log_time, decoded))
-    return msgs
-
-
-def _xyz(points) -> np.ndarray:
-    return np.array([[p.x, p.y, p.z] for p in points])
-
-
 def test_mcap_display_topics_hold_what_was_sent(recorded):
     out, run, sent = recorded
-    msgs = _mcap_messages(out.with_suffix(".mcap"))
+    msgs = mcap_messages(out.with_suffix(".mcap"))
     for topic in (schema.MESH, schema.BACKBONE, schema.OBSTACLE_POINTS, schema.OBSTACLE_SHAPES, schema.GOAL,
                   schema.PLAN, schema.STATE, schema.METRICS, schema.LOG):
         assert [t for t, _ in msgs[topic]] == [round(k * DT * 1e9) for k in range(STEPS)], topic
     for k, s in enumerate(sent):
         mesh = msgs[schema.MESH][k][1].entities[0].triangles[0]
-        np.testing.assert_array_equal(_xyz(mesh.points), s["mesh_vertices"].astype(np.float32))
+        np.testing.assert_array_equal(xyz(mesh.points), s["mesh_vertices"].astype(np.float32))
         np.testing.assert_array_equal(np.array(mesh.indices), run.triangles.ravel())
         lines = msgs[schema.BACKBONE][k][1].entities[0].lines
-        np.testing.assert_array_equal(np.stack([_xyz(l.points) for l in lines]), s["backbone"].astype(np.float32))
+        np.testing.assert_array_equal(np.stack([xyz(l.points) for l in lines]), s["backbone"].astype(np.float32))
         cloud = msgs[schema.OBSTACLE_POINTS][k][1]
         np.testing.assert_array_equal(np.frombuffer(cloud.data, "<f4").reshape(-1, 3),
                                       s["obstacle_points"].astype(np.float32))
@@ -161,7 +132,7 @@ def test_mcap_display_topics_hold_what_was_sent(recorded):
         np.testing.assert_array_equal([goal.translation.x, goal.translation.y, goal.translation.z], s["goal"])
         assert (goal.rotation.w, goal.parent_frame_id, goal.child_frame_id) == (1.0, "world", "goal")
         plan = msgs[schema.PLAN][k][1].entities[0].lines[0]
-        np.testing.assert_array_equal(_xyz(plan.points), s["plan"].astype(np.float32))
+        np.testing.assert_array_equal(xyz(plan.points), s["plan"].astype(np.float32))
         assert msgs[schema.LOG][k][1].message == f"hello {k}"
 
 
@@ -176,11 +147,11 @@ def test_pose_goal_becomes_a_transform(tmp_path, angle):
     with Recorder(tmp_path / "g", {}) as rec:
         rec.log_step(0, 0.0, metrics={}, goal=pose)
         rec.finish({"outcome": "success"})
-    goal = _mcap_messages(tmp_path / "g.mcap")[schema.GOAL][0][1]
+    goal = mcap_messages(tmp_path / "g.mcap")[schema.GOAL][0][1]
     q = np.array([goal.rotation.x, goal.rotation.y, goal.rotation.z, goal.rotation.w])
     expected = np.array([*(np.sin(angle / 2) * axis), np.cos(angle / 2)])
     np.testing.assert_allclose(q * np.sign(q @ expected), expected, atol=1e-12)
-    cols = _rrd_columns(tmp_path / "g.rrd")
+    cols = rrd_columns(tmp_path / "g.rrd")
     np.testing.assert_allclose(np.asarray(cols[(schema.GOAL, "Transform3D:mat3x3")][0]).reshape(3, 3).T,
                                pose[:3, :3], atol=1e-7)
     np.testing.assert_allclose(cols[(schema.GOAL, "Transform3D:translation")][0][0], pose[:3, 3], rtol=1e-6, atol=1e-7)
@@ -267,8 +238,8 @@ def test_ragged_backbones_and_empty_obstacles(tmp_path):
     a, b = load_run(tmp_path / "e.rrd"), load_run(tmp_path / "e.mcap")
     pd.testing.assert_frame_equal(a.metrics, b.metrics)
     assert subprocess.run([RERUN, "rrd", "verify", str(tmp_path / "e.rrd")], capture_output=True).returncode == 0
-    strips = _rrd_columns(tmp_path / "e.rrd")[(schema.BACKBONE, "LineStrips3D:strips")]
+    strips = rrd_columns(tmp_path / "e.rrd")[(schema.BACKBONE, "LineStrips3D:strips")]
     assert [[len(s) for s in row] for row in strips] == [[3, 5], [3]]
     np.testing.assert_array_equal(strips[0][1], lines[1])
-    mcap_lines = [m.entities[0].lines for _, m in _mcap_messages(tmp_path / "e.mcap")[schema.BACKBONE]]
+    mcap_lines = [m.entities[0].lines for _, m in mcap_messages(tmp_path / "e.mcap")[schema.BACKBONE]]
     assert [[len(l.points) for l in row] for row in mcap_lines] == [[3, 5], [3]]
