@@ -655,6 +655,23 @@ def _cell_bounds(geometry: dict, cells: dict, sdf: Callable, spec: RobotSpec):
     return jnp.min(value, axis=1), jnp.min(bound, axis=1), lowest
 
 
+def surface_cell_bounds(arc, spec: RobotSpec, coords, half, disk, link, sdf: Callable):
+    """The judge's per-cell bound, public so that it can be checked against dense sampling.
+
+    Args:
+      arc: (M, 3) arc lengths, m.  coords: (C, 3) cell centres (u, psi, w); half: (C, 2)
+      half extents along (u or w, psi); disk: (C,) bool (disk cell: varies w at fixed u);
+      link: (C,) int.  sdf: ``points (C, 3) -> (values (C, K), subgradients (C, K, 3))``,
+      each column convex and 1-Lipschitz (e.g. :func:`box_sdf`, :func:`triangle_distance`).
+    Returns:
+      value (C,) at the cell centres and a lower bound (C,) of ``min_k f_k`` over each cell.
+    """
+    cells = {"coords": jnp.asarray(coords, jnp.float32), "half": jnp.asarray(half, jnp.float32),
+             "disk": jnp.asarray(disk, bool), "link": jnp.asarray(link, jnp.int32)}
+    pose = _robot_pose(jnp.asarray(arc, jnp.float32), spec)
+    return _cell_bounds(_cell_geometry(cells, pose, spec), cells, sdf, spec)[:2]
+
+
 def _cell_points(coords: jnp.ndarray, link: jnp.ndarray, pose: dict, spec: RobotSpec) -> jnp.ndarray:
     """World points (C, 3) of surface coordinates (C, 3) on links (C,)."""
     return frame_to_world(pose["frames"][link],

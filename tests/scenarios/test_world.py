@@ -32,11 +32,14 @@ from scenarios.world import (
     MovingSphere,
     World,
     WorldError,
+    box_sdf,
     judge_step,
     load_obstacle,
     make_observer,
     robot_motion_bound,
     substep_count,
+    surface_cell_bounds,
+    triangle_distance,
     true_distances,
     true_distances_batch,
     true_min_distance,
@@ -422,3 +425,59 @@ def test_thin_wall_crossed_within_one_step_is_a_collision():
     assert judged.end_distance == pytest.approx(end, abs=1e-6)
     far = judge_step(world, SPEC, arc0, arc0, 0.0, 0.05)
     assert far.first_collision_time is None and far.substeps == 1
+
+
+# ----------------------------------------------------------------------------- the bound itself
+
+
+def random_cells(rng, n, disk):
+    """Cells of random size (up to the coarse cells' and beyond) at random places on a 2-link robot."""
+    half = np.stack([rng.uniform(0.005, 0.3, n), rng.uniform(0.01, 0.6, n)], -1)
+    if disk:
+        w = rng.uniform(half[:, 0], 1 - half[:, 0])
+        u = np.where(rng.random(n) < 0.5, 0.0, 1.0)
+        link = np.where(u == 0, 0, SPEC.n_links - 1)
+    else:
+        half[:, 0] *= 0.3
+        u, w = rng.uniform(half[:, 0], 1 - half[:, 0]), np.ones(n)
+        link = rng.integers(0, SPEC.n_links, n)
+    coords = np.stack([u, rng.uniform(0, 2 * np.pi, n), w], -1)
+    return coords, half, np.full(n, disk), link
+
+
+def cell_samples(coords, half, disk, k=33):
+    """k x k parameter grid over each cell (C, k * k, 3), edges included."""
+    t = np.linspace(-1, 1, k)
+    ta, tb = [x.ravel() for x in np.meshgrid(t, t, indexing="ij")]
+    da, db = ta[None] * half[:, :1], tb[None] * half[:, 1:]
+    out = np.repeat(coords[:, None], k * k, axis=1)
+    out[..., 1] += db
+    out[..., 0] += np.where(disk[:, None], 0, da)
+    out[..., 2] += np.where(disk[:, None], da, 0)
+    return out
+
+
+@pytest.mark.parametrize("disk", [False, True])
+def test_cell_lower_bound_holds_and_is_tight(arcs, disk):
+    rng = np.random.default_rng(12 + disk)
+    coords, half, is_disk, link = random_cells(rng, 200, disk)
+    triangle = jnp.asarray(rng.uniform(-1.0, 1.0, (3, 3)) + [0.0, 0.0, 2.0])
+    funcs = {
+        "box": lambda p: tuple(x[:, None] for x in box_sdf(p, jnp.array([0.6, -0.3, 1.8]), jnp.array([0.3, 0.5, 0.4]))),
+        "triangle": lambda p: tuple(x[:, None] for x in triangle_distance(p, triangle)),
+    }
+    gaps = []
+    for arc in arcs[[0, 2, 5]]:
+        grid = cell_samples(coords, half, is_disk)
+        pts = np.stack([np.asarray(surface_points(jnp.asarray(np.broadcast_to(g, (SPEC.n_links,) + g.shape)), arc,
+                                                  SPEC))[l] for g, l in zip(grid, link)])
+        for name, f in funcs.items():
+            value, bound = (np.asarray(x, np.float64) for x in surface_cell_bounds(arc, SPEC, coords, half, is_disk,
+                                                                                   link, f))
+            sampled = np.asarray(f(jnp.asarray(pts.reshape(-1, 3), jnp.float32))[0]).reshape(len(coords), -1).min(1)
+            assert np.all(bound <= sampled + 1e-5), (name, np.max(bound - sampled))
+            assert np.all(value >= sampled - 1e-5)
+            gaps.append(sampled - bound)
+    # tight where it matters: small cells lose little
+    small = np.tile(np.prod(half, axis=1) < np.quantile(np.prod(half, axis=1), 0.2), len(gaps))
+    assert np.median(np.concatenate(gaps)[small]) < 0.01
