@@ -1,0 +1,93 @@
+"""A user's own world: one obstacle file (mesh or point cloud) and a goal position.
+
+The obstacle is read by ``scenarios.world.load_obstacle`` (trimesh: .stl .obj
+.ply .off .glb ...; a .ply without faces, .xyz or .npy is a bare point cloud),
+shifted by ``--offset``. Mesh surfaces are observed at ``--density`` points per
+square metre; a cloud's points are observed as they are. The robot's base is
+the origin, its first tangent +z (it starts straight up, 2 m per link).
+
+    python -m scenarios.custom --obstacles part.stl --offset 3,0,2 --goal 4,0,4
+
+Scenario options (kept in the run's settings): obstacles (absolute path),
+goal_position, offset, density, tolerance.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+
+from scenarios.cli import base_settings, make_parser, run_cli
+from scenarios.episode import EpisodeSettings, Scene, make_scene, require_fixed_goal
+from scenarios.world import CloudObstacle, World, load_obstacle
+
+DENSITY = 4.0
+TOLERANCE = 0.2
+MAX_STEPS = 300
+OPTIONS = ("obstacles", "goal_position", "offset", "density", "tolerance")
+
+
+def parse_vector(name: str, text: str) -> tuple[float, float, float]:
+    """``"X,Y,Z"`` -> three finite floats; ValueError naming the option and text."""
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) != 3 or not all(math.isfinite(v) for v in values):
+        raise ValueError(f"{name} {text!r} is not three numbers X,Y,Z")
+    return values
+
+
+def parse_positive(name: str, text: str) -> float:
+    """A finite number > 0; ValueError naming the option and text."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not math.isfinite(value) or value <= 0:
+        raise ValueError(f"{name} {text!r} is not a number > 0")
+    return value
+
+
+def build(settings: EpisodeSettings) -> Scene:
+    """The custom scene: options ``obstacles`` and ``goal_position`` required."""
+    require_fixed_goal(settings)
+    options = dict(settings.options)
+    unknown = set(options) - set(OPTIONS)
+    if unknown:
+        raise ValueError(f"unknown custom-scenario options {sorted(unknown)}; known: {', '.join(OPTIONS)}")
+    for name in ("obstacles", "goal_position"):
+        if name not in options:
+            raise ValueError(f"the custom scenario needs the option {name!r}")
+    goal = parse_vector("goal", options["goal_position"])
+    offset = parse_vector("offset", options.get("offset", "0,0,0"))
+    density = parse_positive("density", options.get("density", str(DENSITY)))
+    tolerance = parse_positive("tolerance", options.get("tolerance", str(TOLERANCE)))
+    obstacle = load_obstacle(options["obstacles"], offset)
+    if isinstance(obstacle, CloudObstacle):
+        world = World(clouds=(obstacle,), density=density)
+    else:
+        world = World(meshes=(obstacle,), density=density)
+    return make_scene(settings, world, goal, tolerance, MAX_STEPS)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = make_parser("custom", __doc__, max_steps=MAX_STEPS)
+    parser.add_argument("--obstacles", required=True, metavar="FILE", help="obstacle mesh or point-cloud file")
+    parser.add_argument("--goal", required=True, metavar="X,Y,Z", help="goal position, m")
+    parser.add_argument("--offset", default="0,0,0", metavar="X,Y,Z", help="shift of the obstacle, m (default 0,0,0)")
+    parser.add_argument("--density", default=str(DENSITY),
+                        help=f"observed points per square metre of mesh surface (default {DENSITY})")
+    parser.add_argument("--tolerance", default=str(TOLERANCE), help=f"goal tolerance, m (default {TOLERANCE})")
+
+    def settings(args) -> EpisodeSettings:
+        options = {"obstacles": str(Path(args.obstacles).resolve()), "goal_position": args.goal,
+                   "offset": args.offset, "density": args.density, "tolerance": args.tolerance}
+        return base_settings("custom", args, options=tuple(options.items()))
+
+    return run_cli(parser, argv, settings)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
