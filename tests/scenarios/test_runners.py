@@ -1,0 +1,211 @@
+"""Scenario runners: a CLI end to end, one-line errors, presets, and the scenes against paper-setups.md."""
+
+import dataclasses
+import os
+import signal
+
+import numpy as np
+import pytest
+
+from ncedf.robot import RobotSpec
+from recorder import inspect as recorder_inspect
+from recorder import load_run
+from scenarios import charging, cluttered, custom, spheres
+from scenarios import episode as episode_mod
+from scenarios.episode import Episode, EpisodeSettings
+from scenarios.presets import POINT_BUCKET, mppi_config, point_capacity
+from scenarios.world import true_min_distance
+
+TINY = ["--links", "4", "--samples", "16", "--horizon", "4", "--max-steps", "2"]
+
+
+def exit_status(main, argv):
+    try:
+        return main(argv)
+    except SystemExit as exc:  # argparse's own errors
+        return exc.code
+
+
+@pytest.fixture(scope="module")
+def cluttered_run(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("cluttered")
+    status = cluttered.main(TINY + ["--out", str(folder / "rec")])
+    return status, folder
+
+
+def test_cluttered_cli_writes_complete_recordings(cluttered_run, capsys):
+    status, folder = cluttered_run
+    assert status == 0
+    rrd, mcap = load_run(folder / "rec.rrd"), load_run(folder / "rec.mcap")
+    for run in (rrd, mcap):
+        assert run.complete and run.outcome["outcome"] in ("success", "collision", "stuck")
+        assert run.meta["scenario"] == "cluttered" and run.meta["settings"]["samples"] == 16
+        assert len(run.metrics) == run.outcome["steps"] + (run.outcome["outcome"] != "collision")
+    assert rrd.outcome == mcap.outcome
+    assert recorder_inspect.main([str(folder / "rec.rrd"), str(folder / "rec.mcap")]) == 0
+    assert "outcome: " in capsys.readouterr().out
+
+
+def test_existing_recordings_are_kept(cluttered_run, capsys):
+    _, folder = cluttered_run
+    before = (folder / "rec.mcap").read_bytes()
+    assert cluttered.main(TINY + ["--out", str(folder / "rec")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "rec" in err and "overwrite" in err
+    assert (folder / "rec.mcap").read_bytes() == before
+
+
+@pytest.mark.parametrize("signum, status", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_a_signal_keeps_the_steps_so_far(cluttered_run, capsys, monkeypatch, signum, status):
+    _, folder = cluttered_run
+    judge = episode_mod.world_mod.judge_step
+
+    def judge_then_signal(world, spec, arc0, arc1, t0, dt):
+        if t0 > 0.5 * dt:  # during step 1
+            os.kill(os.getpid(), signum)
+        return judge(world, spec, arc0, arc1, t0, dt)
+
+    monkeypatch.setattr(episode_mod.world_mod, "judge_step", judge_then_signal)
+    out = folder / f"stopped-{status}"
+    assert cluttered.main(TINY[:-1] + ["5", "--out", str(out)]) == status
+    err = [line for line in capsys.readouterr().err.splitlines() if line and not line.startswith("cluttered:")]
+    assert len(err) == 1 and "interrupted" in err[0] and signal.Signals(signum).name in err[0]  # the bar aside
+    for suffix in (".rrd", ".mcap"):
+        run = load_run(out.with_suffix(suffix))
+        assert run.complete and run.outcome["outcome"] == "interrupted" and list(run.metrics["step"]) == [0, 1]
+
+
+@pytest.mark.parametrize("argv, named", [
+    (["--links", "0"], "0"),
+    (["--shape", "bogus"], "bogus"),
+    (["--model", "no/such/model.msgpack"], "no/such/model"),
+    (["--controller", "best"], "best"),
+    (["--formats", "rrd,png"], "png"),
+    (["--links", "four"], "four"),
+    (["--mesh-every", "0"], "mesh-every"),
+    (["--shape", "exact", "--model", "m.msgpack"], "m.msgpack"),
+])
+def test_bad_values_exit_2_with_one_line_and_write_nothing(tmp_path, capsys, argv, named):
+    out = tmp_path / "new" / "rec"
+    assert exit_status(cluttered.main, argv + ["--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and named in err
+    assert not (tmp_path / "new").exists()
+
+
+def test_custom_runner_names_a_bad_obstacle_file_or_goal(tmp_path, capsys):
+    cloud = tmp_path / "cloud.npy"
+    np.save(cloud, np.array([[3.0, 0.0, 3.0]]))
+    for argv, named in [(["--obstacles", str(tmp_path / "missing.stl"), "--goal", "4,0,4"], "missing.stl"),
+                        (["--obstacles", str(cloud), "--goal", "4,0"], "4,0"),
+                        (["--obstacles", str(cloud), "--goal", "4,0,4", "--density", "-1"], "-1")]:
+        assert exit_status(custom.main, argv + ["--out", str(tmp_path / "new" / "rec")]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and named in err
+    assert not (tmp_path / "new").exists()
+
+
+# ---------------------------------------------------------------- presets
+def test_presets_follow_paper_setups():
+    release = {links: mppi_config("release", "cluttered", links, n_points=500) for links in (4, 5, 7)}
+    assert [(c.samples, c.horizon) for c in release.values()] == [(800, 20), (800, 20), (800, 7)]
+    r = release[4]
+    assert (r.covariance, r.noise_clip, r.w_goal_terminal, r.w_coll_terminal, r.w_perturbation) == (
+        0.1, 0.5, 22.0, 1.1, 0.1)
+    assert (r.w_goal, r.w_coll, r.w_state, r.temperature, r.safety_margin) == (12.0, 1.1, 50.0, 0.02, 0.05)
+    s = mppi_config("release", "spheres", 4, n_points=8, margin_extra=0.7)
+    assert (s.samples, s.horizon, s.safety_margin) == (1000, 12, pytest.approx(0.75))
+    p = mppi_config("paper", "cluttered", 7, n_points=500)
+    assert (p.samples, p.horizon, p.covariance, p.noise_clip, p.w_goal_terminal) == (800, 20, 0.05, None, 0.0)
+    small = mppi_config("paper", "spheres", 4, n_points=8, samples=16, horizon=3)
+    assert (small.samples, small.horizon) == (16, 3)
+    with pytest.raises(ValueError, match="best"):
+        mppi_config("best", "cluttered", 4, n_points=1)
+
+
+def test_point_capacity_rounds_up_to_the_bucket():
+    assert [point_capacity(n) for n in (0, 1, POINT_BUCKET, POINT_BUCKET + 1)] == [
+        POINT_BUCKET, POINT_BUCKET, POINT_BUCKET, 2 * POINT_BUCKET]
+
+
+# ---------------------------------------------------------------- scenes
+def test_cluttered_scene_is_the_papers():
+    scene = Episode(EpisodeSettings("cluttered", 7, 0)).scene
+    world = scene.world
+    paper_boxes = [((2.5, 0, 5), (1, 4.8, 3)), ((2.5, 0, 0), (1, 5, 2)), ((5.3, 0, 2), (2, 5, 1))]
+    assert [(b.centre, b.size) for b in world.boxes] == paper_boxes
+    assert [(s.centre, s.velocity) for s in world.spheres] == [((4, -4.5, 3.8), (0, 1, 0)), ((4, 0, 2.2), (0, 0, -0.8))]
+    assert [s.radius for s in world.spheres] == [0.5, 0.5] and all(s.half_period == 5.0 for s in world.spheres)
+    area = sum(2 * (x * y + y * z + x * z) for _, (x, y, z) in paper_boxes)
+    assert abs(scene.observer.n_points - (4.0 * area + 60)) < 0.1 * (4.0 * area + 60)  # about 500
+    assert scene.config.max_points >= scene.observer.n_points and scene.config.horizon == 7
+    assert (tuple(scene.goal), scene.tolerance, scene.max_steps) == ((4.8, 0.0, 3.6), 0.4, 300)
+
+
+@pytest.mark.parametrize("env_seed", [0, 1, 2])
+@pytest.mark.parametrize("goal", ["fixed", "random"])
+def test_spheres_environments_are_accepted_and_deterministic(env_seed, goal):
+    spec = RobotSpec(4)
+    world, target, attempts = spheres.make_environment(env_seed, spec, goal)
+    again, target_again, _ = spheres.make_environment(env_seed, spec, goal)
+    assert again == world and np.array_equal(target, target_again) and attempts >= 1
+    centres = np.array([s.centre for s in world.spheres])
+    velocities = np.array([s.velocity for s in world.spheres])
+    assert len(centres) == 8 and all(s.radius == 0.7 and s.half_period == 2.0 for s in world.spheres)
+    assert np.all(centres >= [-4, -4, -1]) and np.all(centres <= [4, 4, 6])
+    assert np.all((velocities >= 0) & (velocities < 1))
+    gaps = np.linalg.norm(centres[:, None] - centres[None], axis=-1) + 10 * np.eye(8)
+    assert gaps.min() >= 1.5
+    assert np.linalg.norm(centres - target, axis=1).min() >= 2.0
+    # exact distance from the straight robot to the sphere surfaces (the judge's geometry)
+    assert true_min_distance(world, spec, np.asarray(spec.straight_state()), 0.0) > 0.1
+    if goal == "fixed":
+        assert tuple(target) == (4.0, 0.0, 4.0)
+    else:
+        assert np.linalg.norm(target) <= 2.0 * spec.n_links  # the tip of some configuration
+    assert world.observe == "centres" and world.margin_extra == 0.7
+
+
+def test_spheres_scene_observes_centres_with_a_wider_margin():
+    scene = Episode(EpisodeSettings("spheres", 4, 0, env_seed=5, shape="exact")).scene
+    assert scene.observer.n_points == 8 and scene.observer.observe(0.0).shape == (8, 3)
+    assert (scene.config.samples, scene.config.horizon) == (1000, 12)
+    assert scene.config.safety_margin == pytest.approx(0.05 + 0.7)
+    assert (scene.tolerance, scene.max_steps) == (0.2, 200)
+
+
+@pytest.mark.parametrize("env_seed", [0, 1, 7])
+def test_charging_wall_leaves_exactly_the_port_open(env_seed):
+    world, port = charging.make_world(env_seed)
+    assert port[0] == 5.0 and -3 <= port[1] <= 3 and 1 <= port[2] <= 5
+    lo = np.array([c - s / 2 for c, s in zip((5.0, 0.0, 3.0), (1.0, 7.0, 6.0))])
+    hi = lo + np.array([1.0, 7.0, 6.0])
+    boxes = [(np.array(b.centre) - np.array(b.size) / 2, np.array(b.centre) + np.array(b.size) / 2)
+             for b in world.boxes]
+    assert sum(np.prod(b - a) for a, b in boxes) == pytest.approx(1 * 7 * 6 - 1)
+    samples = lo + (hi - lo) * np.random.default_rng(env_seed).random((4000, 3))
+    inside = np.stack([np.all((samples > a) & (samples < b), axis=1) for a, b in boxes]).sum(axis=0)
+    in_port = np.all(np.abs(samples[:, 1:] - port[1:]) < 0.5, axis=1)
+    np.testing.assert_array_equal(inside, ~in_port)  # each wall point in exactly one box, none in the port
+    assert len(world.spheres) == 8 and all(s.radius == 0.5 and s.half_period == 2.0 for s in world.spheres)
+    assert world.density == 5.0
+
+
+def test_charging_goal_is_a_pose_approaching_along_x():
+    scene = Episode(EpisodeSettings("charging", 4, 0, env_seed=3, shape="exact")).scene
+    goal = scene.goal
+    assert goal.shape == (4, 4) and scene.angle_tolerance is not None
+    np.testing.assert_allclose(goal[:3, 2], [1.0, 0.0, 0.0])
+    np.testing.assert_allclose(goal[:3, :3] @ goal[:3, :3].T, np.eye(3), atol=1e-12)
+    assert np.linalg.det(goal[:3, :3]) == pytest.approx(1.0)
+    np.testing.assert_allclose(goal[:3, 3], charging.port_position(3))
+    assert scene.config.max_points >= scene.observer.n_points
+
+
+def test_scenarios_refuse_settings_they_do_not_use():
+    with pytest.raises(ValueError, match="random"):
+        Episode(EpisodeSettings("cluttered", 4, 0, goal="random"))
+    with pytest.raises(ValueError, match="options"):
+        Episode(EpisodeSettings("charging", 4, 0, options=(("x", "1"),)))
+    with pytest.raises(ValueError, match="obstacles"):
+        Episode(dataclasses.replace(EpisodeSettings("custom", 4, 0), options=(("goal_position", "1,2,3"),)))
