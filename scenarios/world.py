@@ -887,13 +887,15 @@ def _check_state(arc, spec: RobotSpec) -> np.ndarray:
     return arc
 
 
-def true_distances_batch(world: World, spec: RobotSpec, arcs, times) -> np.ndarray:
+def true_distances_batch(world: World, spec: RobotSpec, arcs, times, exact_depth: bool = False) -> np.ndarray:
     """Exact signed distances for many states and times at once (module docstring).
 
     One jitted program per robot and world layout (states are evaluated ``_CHUNK`` at a time).
 
     Args:
       arcs: (N, M, 3) arc lengths, m.  times: (N,) s.
+      exact_depth: also refine penetrations deeper than the bound until certified (slow;
+        by default their value is only certain to be negative and no deeper than the truth).
     Returns:
       (N, n_obstacles) float64, m (negative = penetration), obstacles in the order
       spheres, boxes, meshes, clouds; boxes and meshes within DISTANCE_ERROR_BOUND.
@@ -923,7 +925,7 @@ def true_distances_batch(world: World, spec: RobotSpec, arcs, times) -> np.ndarr
     values, certs = np.concatenate(values), np.concatenate(certs)
     # Uncertified (rare): refine without a size limit, unless a penetration deeper than the
     # tolerance is already certain (the value, a real point's, is then an upper bound < -_CERTIFIED).
-    for i, k in zip(*np.nonzero((certs > _CERTIFIED) & (values > -_CERTIFIED))):
+    for i, k in zip(*np.nonzero((certs > _CERTIFIED) & ((values > -_CERTIFIED) | exact_depth))):
         values[i, k] = _exhaustive(world, spec, arcs[i], int(k))
     return values
 
