@@ -74,7 +74,9 @@ distance (negative inside).
 
 Every box and mesh value v is therefore the function at a real point (so
 ``v >= d``, the truth) and certified ``v <= d + _CERTIFIED`` (4 mm), except
-certain penetrations deeper than that (``d <= v < -4 mm``).
+certain penetrations deeper than that (``d <= v < -4 mm``; refined too with
+``exact_depth=True``). The per-cell bound is public as
+:func:`surface_cell_bounds` so that it can be checked against dense sampling.
 ``DISTANCE_ERROR_BOUND`` = 5 mm leaves 1 mm for float32 rounding (about
 1e-5 m at 20 m from the origin).
 
@@ -162,20 +164,22 @@ def _rows(value, width: int, dtype, name: str, owner: str) -> tuple[tuple, ...]:
     return tuple(tuple(row) for row in arr.tolist())
 
 
-def triangle_wave(t, half_period):
+def _triangle_wave(t, half_period):
     """Integral of the periodic sign (+1 on [0, h), -1 on [h, 2h), ...): ``h - |t mod 2h - h|``.
+
+    numpy (float64) for numpy or Python inputs, JAX for JAX arrays (traceable).
 
     Args:
       t: time(s), s.  half_period: h (...,), s; infinite = no flip (returns t).
     Returns:
       array broadcast of t and h, s.
     """
-    t = jnp.asarray(t)
-    h = jnp.asarray(half_period)
-    finite = jnp.isfinite(h)
-    safe_h = jnp.where(finite, h, 1.0)
-    phase = jnp.mod(t, 2.0 * safe_h)
-    return jnp.where(finite, safe_h - jnp.abs(phase - safe_h), t)
+    xp = jnp if isinstance(t, jax.Array) or isinstance(half_period, jax.Array) else np
+    t, h = xp.asarray(t), xp.asarray(half_period)
+    finite = xp.isfinite(h)
+    safe_h = xp.where(finite, h, 1.0)
+    phase = xp.mod(t, 2.0 * safe_h)
+    return xp.where(finite, safe_h - xp.abs(phase - safe_h), t)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -201,7 +205,7 @@ class MovingSphere:
 
     def position(self, t: float) -> np.ndarray:
         """Centre at time t, (3,) m."""
-        tri = float(triangle_wave(float(t), self.half_period))
+        tri = float(_triangle_wave(float(t), self.half_period))
         return np.asarray(self.centre) + tri * np.asarray(self.velocity)
 
     @property
@@ -325,6 +329,7 @@ class World:
 
     @property
     def n_obstacles(self) -> int:
+        """Number of obstacles (the length of :func:`true_distances`)."""
         return len(self.spheres) + len(self.boxes) + len(self.meshes) + len(self.clouds)
 
     def obstacle_labels(self) -> tuple[str, ...]:
@@ -437,7 +442,7 @@ def _triangle_areas(triangles: np.ndarray) -> np.ndarray:
                                          triangles[..., 2, :] - triangles[..., 0, :]), axis=-1)
 
 
-def box_faces(centre, size) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _box_faces(centre, size) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The six faces of a box: centres (6, 3), two edge half-vectors (6, 2, 3), areas (6,)."""
     c, h = np.asarray(centre, np.float64), 0.5 * np.asarray(size, np.float64)
     centres, half_edges, areas = [], [], []
@@ -489,7 +494,7 @@ def make_observer(world: World, key) -> Observer:
     k_box, k_mesh, k_tri, k_sphere = jax.random.split(_as_key(key), 4)
     parts = []
     if world.boxes:
-        faces = [box_faces(b.centre, b.size) for b in world.boxes]
+        faces = [_box_faces(b.centre, b.size) for b in world.boxes]
         centres = np.concatenate([f[0] for f in faces])
         half_edges = np.concatenate([f[1] for f in faces])
         counts = np.rint(world.density * np.concatenate([f[2] for f in faces])).astype(int)
@@ -838,7 +843,7 @@ def _triangle_cover(triangles):
 
 def _sphere_centres_at(spheres: jnp.ndarray, t) -> jnp.ndarray:
     """(S, 8) rows (centre, velocity, radius, half period) -> (S, 3) centres at time t."""
-    return spheres[:, :3] + triangle_wave(t, spheres[:, 7])[:, None] * spheres[:, 3:6]
+    return spheres[:, :3] + _triangle_wave(jnp.asarray(t), spheres[:, 7])[:, None] * spheres[:, 3:6]
 
 
 def _distances_one(arc, t, arrays, cells, spec: RobotSpec, n_clouds: int):
