@@ -17,6 +17,7 @@ import argparse
 import math
 import signal
 import sys
+from pathlib import Path
 from typing import Callable
 
 from recorder import RecorderError
@@ -91,11 +92,14 @@ def parse_formats(text: str) -> tuple[str, ...]:
 
 
 def base_settings(scenario: str, args: argparse.Namespace, **fields) -> EpisodeSettings:
-    """EpisodeSettings from the shared options, plus scenario fields (goal, options)."""
+    """EpisodeSettings from the shared options, plus scenario fields (goal, options).
+
+    A model path is kept absolute, so the recorded settings rerun from any folder.
+    """
     return EpisodeSettings(
         scenario=scenario, links=args.links, seed=args.seed, env_seed=args.env_seed, shape=args.shape,
-        model=args.model, controller=args.controller, samples=args.samples, horizon=args.horizon,
-        max_steps=args.max_steps, **fields)
+        model=str(Path(args.model).resolve()) if args.model else None, controller=args.controller,
+        samples=args.samples, horizon=args.horizon, max_steps=args.max_steps, **fields)
 
 
 def summary(result: EpisodeResult) -> str:

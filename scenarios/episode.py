@@ -287,7 +287,7 @@ def obstacle_shapes(world, t: float) -> dict:
     """True sphere and box geometry at time t in the recorder's form."""
     shapes = {}
     if world.spheres:
-        shapes["spheres"] = {"centers": np.array([s.position(t) for s in world.spheres]),
+        shapes["spheres"] = {"centers": world.sphere_centres(t),
                              "radii": np.array([s.radius for s in world.spheres])}
     if world.boxes:
         shapes["boxes"] = {"centers": np.array([b.centre for b in world.boxes]),
