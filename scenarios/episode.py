@@ -163,10 +163,6 @@ class EpisodeSettings:
             raise ValueError(f"options name a setting twice: {names}")
         object.__setattr__(self, "options", tuple(sorted(pairs)))
 
-    def option(self, name: str, default: str | None = None) -> str | None:
-        """The value of a scenario option, or ``default``."""
-        return dict(self.options).get(name, default)
-
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict (options as [name, value] lists); ``from_dict`` inverts it."""
         d = dataclasses.asdict(self)
