@@ -1,0 +1,245 @@
+"""Sweeps: recordings per episode, resumption, failure isolation, Ray, CLI errors and interruption.
+
+Tiny episodes (16 rollouts, horizon 3, at most 25 steps: environments 0-4 end in a mix of
+outcomes) of the spheres scenario with the spheres representation; the sweeps share one
+persistent compilation cache, so the configuration compiles once for the whole file.
+"""
+
+import contextlib
+import io
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from collections import Counter
+from pathlib import Path
+
+import pandas as pd
+import pytest
+import ray
+
+from recorder import Recorder, load_run, load_runs
+from scenarios.episode import EpisodeSettings, episode_name
+from scenarios.sweep import FINAL_OUTCOMES, JAX_CACHE, Recorded, main, read_complete, run_sweep, sweep_settings
+
+TINY = ["--scenario", "spheres", "--shapes", "spheres", "--samples", "16", "--horizon", "3"]
+STEPS = 25
+ENVS = 5
+#: Metrics that are a function of the settings (solver_ms is wall time).
+DETERMINISTIC = ["step", "sim_time", "goal_distance", "predicted_min_distance", "true_min_distance"]
+
+
+def tiny(env_seed: int, max_steps: int = STEPS) -> EpisodeSettings:
+    return EpisodeSettings(scenario="spheres", links=4, seed=0, env_seed=env_seed, shape="spheres", samples=16,
+                           horizon=3, max_steps=max_steps)
+
+
+def cli(argv) -> tuple[int, str, str]:
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        status = main(argv)
+    return status, out.getvalue(), err.getvalue()
+
+
+def table_counts(text: str) -> dict[str, int]:
+    """Outcome counts of the single row of a summary table."""
+    lines = [line for line in text.splitlines() if line.strip()]
+    header = re.split(r"\s{2,}", lines[0])
+    row = dict(zip(header, re.split(r"\s{2,}", lines[1])))
+    counts = {o: int(re.search(r"\((\d+)\)", row[o]).group(1)) for o in FINAL_OUTCOMES}
+    counts["episodes"] = int(row["episodes"])
+    return counts
+
+
+def deterministic(path: Path) -> pd.DataFrame:
+    return load_run(path).metrics[DETERMINISTIC]
+
+
+@pytest.fixture(scope="module")
+def swept(tmp_path_factory):
+    """The tiny sweep run once from the CLI, with one worker: (folder, exit status, stdout, stderr)."""
+    out = tmp_path_factory.mktemp("sweep") / "runs"
+    status, stdout, stderr = cli([*TINY, "--max-steps", str(STEPS), "--envs", str(ENVS), "--workers", "1",
+                                  "--out", str(out)])
+    return out, status, stdout, stderr
+
+
+@pytest.fixture()
+def copy_of(swept, tmp_path):
+    """A copy of the swept folder (its compilation cache included) for tests that change it."""
+    out = tmp_path / "runs"
+    shutil.copytree(swept[0], out)
+    return out
+
+
+def test_a_sweep_records_every_episode_and_counts_their_outcomes(swept):
+    out, status, stdout, stderr = swept
+    assert status == 0, stderr
+    expected = {episode_name(tiny(e)) for e in range(ENVS)}
+    assert {p.stem for p in out.glob("*.mcap")} == expected and not list(out.glob("*.rrd"))
+    runs, _ = load_runs(out)
+    assert runs["complete"].all() and set(runs["outcome"]) <= set(FINAL_OUTCOMES)
+    for path in runs["path"]:  # each recording holds the settings it is named after
+        assert episode_name(EpisodeSettings.from_dict(load_run(path).meta["settings"])) == Path(path).stem
+    read_back = Counter(runs["outcome"])
+    assert table_counts(stdout) == {**{o: read_back[o] for o in FINAL_OUTCOMES}, "episodes": ENVS}
+
+
+def test_a_rerun_skips_every_complete_episode(swept):
+    out, _, first_stdout, _ = swept
+    before = {p: p.stat().st_mtime_ns for p in out.glob("*.mcap")}
+    status, stdout, stderr = cli([*TINY, "--max-steps", str(STEPS), "--envs", str(ENVS), "--workers", "1",
+                                  "--out", str(out)])
+    assert status == 0, stderr
+    assert f"{ENVS} complete, 0 to run" in stderr
+    assert {p: p.stat().st_mtime_ns for p in out.glob("*.mcap")} == before
+    assert table_counts(stdout) == table_counts(first_stdout)
+
+
+def test_the_grid_holds_every_combination_once_grouped_by_configuration():
+    grid = sweep_settings(["spheres", "cluttered"], [4, 5], ["ncedf", "pointcloud:10"], ["paper", "release"],
+                          envs=2, seeds=3, samples=16)
+    cells = {(s.scenario, s.links, s.shape, s.controller, s.env_seed, s.seed) for s in grid}
+    assert len(grid) == len(cells) == 2 * 2 * 2 * 2 * 2 * 3
+    assert len({episode_name(s) for s in grid}) == len(grid) and all(s.samples == 16 for s in grid)
+    configurations = [(s.scenario, s.links, s.shape, s.controller) for s in grid]
+    blocks = [c for i, c in enumerate(configurations) if i == 0 or configurations[i - 1] != c]
+    assert len(blocks) == len(set(configurations)) == 16  # each configuration's episodes run in a row
+    with pytest.raises(ValueError, match="more than once"):
+        sweep_settings(["spheres"], [4], ["ncedf", "ncedf"])
+
+
+@pytest.mark.parametrize("outcome, formats, complete", [
+    ("stuck", ("mcap",), True), ("interrupted", ("mcap",), False), (None, ("mcap",), False),
+    ("success", ("mcap", "rrd"), False),  # the .rrd is missing
+])
+def test_only_closed_recordings_with_a_final_outcome_count_as_complete(tmp_path, outcome, formats, complete):
+    stem = tmp_path / "episode"
+    rec = Recorder(stem, {"scenario": "synthetic"}, formats=("mcap",))
+    rec.log_step(0, 0.0, metrics={"solver_ms": 2.0})
+    rec.log_step(1, 0.05, metrics={"solver_ms": 4.0})
+    if outcome is None:  # a killed run: flushed, never closed
+        rec.flush()
+        assert read_complete(stem, formats) is None
+        return
+    rec.finish({"outcome": outcome, "steps": 2})
+    assert read_complete(stem, formats) == (Recorded(outcome, 3.0) if complete else None)
+
+
+def test_a_corrupt_recording_is_run_again_and_a_failing_episode_stops_no_other(copy_of, capsys):
+    victim, *kept = sorted(copy_of.glob("*.mcap"))
+    original, kept_mtimes = deterministic(victim), [p.stat().st_mtime_ns for p in kept]
+    victim.write_bytes(victim.read_bytes()[: victim.stat().st_size // 2])
+    missing = copy_of / "missing.stl"
+    bad = EpisodeSettings(scenario="custom", links=4, seed=0, shape="spheres", samples=16, horizon=3, max_steps=3,
+                          options=(("obstacles", str(missing)), ("goal_position", "4,0,4")))
+    episodes = [bad, *(tiny(e) for e in range(ENVS))]
+    with pytest.raises(ValueError, match="missing.stl"):  # checked before anything is written ...
+        run_sweep(episodes, copy_of / "checked", workers=1)
+    assert not (copy_of / "checked").exists()
+
+    report = run_sweep(episodes, copy_of, workers=1, check=False)  # ... or reported when it runs
+    states = {e.settings: e.state for e in report.episodes}
+    assert states == {bad: "failed", **{tiny(e): "run" if episode_name(tiny(e)) == victim.stem else "skipped"
+                                        for e in range(ENVS)}}
+    assert report.exit_status == 1 and "missing.stl" in report.episodes[0].error
+    lines = [line for line in capsys.readouterr().err.splitlines() if line.startswith("failed:")]
+    assert len(lines) == 1 and episode_name(bad) in lines[0] and "missing.stl" in lines[0]
+    assert load_run(victim).complete and [p.stat().st_mtime_ns for p in kept] == kept_mtimes
+    pd.testing.assert_frame_equal(deterministic(victim), original)  # same settings, same episode
+
+
+# Ray starts its processes by fork + exec, which JAX's at-fork hook warns about needlessly.
+@pytest.mark.filterwarnings("ignore:os.fork:RuntimeWarning")
+def test_ray_runs_the_same_episodes(swept, tmp_path):
+    out = tmp_path / "ray"
+    ray.init(num_cpus=1, include_dashboard=False)
+    try:
+        report = run_sweep([tiny(e) for e in range(ENVS)], out, executor="ray", progress=False,
+                           jax_cache=swept[0] / JAX_CACHE)
+    finally:
+        ray.shutdown()
+    assert report.count("run") == ENVS and report.exit_status == 0 and len(list(out.glob("*.mcap"))) == ENVS
+    for path in out.glob("*.mcap"):  # same settings, same episodes
+        pd.testing.assert_frame_equal(deterministic(path), deterministic(swept[0] / path.name))
+
+
+@pytest.mark.parametrize("args, named", [
+    (["--envs", "0"], "envs .*0"),
+    (["--links", "4,x"], "'4,x'"),
+    (["--shapes", "spheres,bogus"], "'bogus'"),
+    (["--controllers", "fast"], "'fast'"),
+    (["--formats", "mp4"], "'mp4'"),
+    (["--workers", "0"], "workers .*0"),
+    (["--option", "nokey"], "'nokey'"),
+    (["--executor", "ray", "--workers", "2"], "--workers"),
+])
+def test_bad_values_are_one_line_errors_and_write_nothing(tmp_path, capsys, args, named):
+    out = tmp_path / "runs"
+    try:
+        status = main([*TINY, *args, "--out", str(out)])
+    except SystemExit as exc:  # argparse's own errors
+        status = exc.code
+    err = capsys.readouterr().err.strip().splitlines()
+    assert status == 2 and len(err) == 1 and re.search(named, err[0]), err
+    assert not out.exists()
+
+
+def test_ctrl_c_keeps_complete_episodes_and_the_same_command_finishes_the_sweep(swept, tmp_path):
+    out = tmp_path / "runs"
+    shutil.copytree(swept[0] / JAX_CACHE, out / JAX_CACHE)
+    envs = 12
+    argv = [*TINY, "--max-steps", "3", "--envs", str(envs), "--workers", "1", "--out", str(out)]
+    settings = [tiny(e, max_steps=3) for e in range(envs)]
+    stems = [out / episode_name(s) for s in settings]
+    proc = subprocess.Popen([sys.executable, "-m", "scenarios.sweep", *argv], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    deadline = time.monotonic() + 120
+    while read_complete(stems[0], ("mcap",)) is None and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.05)
+    os.killpg(proc.pid, signal.SIGINT)  # as Ctrl-C: the sweep and its workers
+    _, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 130, stderr
+    assert "Traceback" not in stderr
+    last = stderr.strip().splitlines()[-1]
+    found = re.fullmatch(rf"interrupted by SIGINT: (\d+) of {envs} episodes complete in .*", last)
+    assert found, stderr
+    kept = int(found.group(1))
+    assert kept == sum(read_complete(stem, ("mcap",)) is not None for stem in stems)
+    assert 1 <= kept < envs
+    report = run_sweep(settings, out, workers=1, progress=False)
+    assert report.count("skipped") == kept and report.count("run") == envs - kept and report.exit_status == 0
+
+
+def children(pid: int) -> set[int]:
+    return {int(c) for task in Path(f"/proc/{pid}/task").iterdir() for c in (task / "children").read_text().split()}
+
+
+def alive(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().split(")")[-1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
+
+
+def test_sigterm_stops_the_workers_too(tmp_path):
+    out = tmp_path / "runs"
+    argv = [*TINY, "--envs", "2", "--workers", "1", "--out", str(out)]  # stopped while compiling
+    proc = subprocess.Popen([sys.executable, "-m", "scenarios.sweep", *argv], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while not (out / JAX_CACHE).exists() and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.05)  # the worker compiles its first program
+    started = children(proc.pid)
+    proc.send_signal(signal.SIGTERM)  # to the sweep alone: it stops its worker
+    _, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 143, stderr
+    assert "Traceback" not in stderr
+    assert re.fullmatch(r"interrupted by SIGTERM: 0 of 2 episodes complete in .*", stderr.strip().splitlines()[-1])
+    deadline = time.monotonic() + 10  # the resource tracker leaves when it sees the sweep gone
+    while any(alive(pid) for pid in started) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert started and not [pid for pid in started if alive(pid)]
