@@ -116,9 +116,9 @@ def sweep_settings(
       common: further `EpisodeSettings` fields shared by every episode (samples, horizon, max_steps,
         goal, model, options).
     Raises:
-      ValueError naming the bad value (also from `EpisodeSettings`), or two episodes with one name.
+      ValueError naming the bad value (also from `EpisodeSettings`).
     """
-    from scenarios.episode import EpisodeSettings, episode_name
+    from scenarios.episode import EpisodeSettings
 
     shapes = (EpisodeSettings.shape,) if shapes is None else shapes
     controllers = (EpisodeSettings.controller,) if controllers is None else controllers
@@ -129,17 +129,13 @@ def sweep_settings(
                          ("controllers", controllers)):
         if not values:
             raise ValueError(f"{name} must not be empty")
-    episodes = [
+    return [
         EpisodeSettings(scenario=scenario, links=n_links, shape=shape, controller=controller,
                         env_seed=env_seed, seed=seed, **common)
         for scenario, n_links, shape, controller in itertools.product(scenarios, links, shapes, controllers)
         for env_seed in range(envs)
         for seed in range(seeds)
     ]
-    repeated = [name for name, n in Counter(episode_name(s) for s in episodes).items() if n > 1]
-    if repeated:
-        raise ValueError(f"episode {repeated[0]!r} appears more than once (a value is repeated)")
-    return episodes
 
 
 def check_configurations(episodes: Sequence[EpisodeSettings]) -> None:
@@ -445,7 +441,7 @@ def run_sweep(
         `<out>/.jax-cache`; on Ray none (compiled CPU programs are only safe to share between machines
         with the same CPU features).
     Raises:
-      ValueError naming a bad argument or setting (before anything is written).
+      ValueError naming a bad argument or setting, or an episode given twice (before anything is written).
     """
     from scenarios.episode import episode_name
 
@@ -458,6 +454,9 @@ def run_sweep(
     for name, value in (("workers", workers), ("recycle", recycle)):
         if isinstance(value, bool) or not isinstance(value, int) or value < 1:
             raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+    repeated = [name for name, n in Counter(map(episode_name, episodes)).items() if n > 1]
+    if repeated:
+        raise ValueError(f"episode {repeated[0]} is given more than once (a repeated value?)")
     out = Path(out).resolve()
     existing = next(p for p in (out, *out.parents) if p.exists())
     if not existing.is_dir() or not os.access(existing, os.W_OK | os.X_OK):

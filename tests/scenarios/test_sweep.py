@@ -108,8 +108,6 @@ def test_the_grid_holds_every_combination_once_grouped_by_configuration():
     configurations = [(s.scenario, s.links, s.shape, s.controller) for s in grid]
     blocks = [c for i, c in enumerate(configurations) if i == 0 or configurations[i - 1] != c]
     assert len(blocks) == len(set(configurations)) == 16  # each configuration's episodes run in a row
-    with pytest.raises(ValueError, match="more than once"):
-        sweep_settings(["spheres"], [4], ["ncedf", "ncedf"])
 
 
 @pytest.mark.parametrize("outcome, formats, complete", [
@@ -176,6 +174,7 @@ def test_ray_runs_the_same_episodes(swept, tmp_path):
     (["--workers", "0"], "workers .*0"),
     (["--option", "nokey"], "'nokey'"),
     (["--executor", "ray", "--workers", "2"], "--workers"),
+    (["--links", "4,5,4"], "L4_spheres.* more than once"),
 ])
 def test_bad_values_are_one_line_errors_and_write_nothing(tmp_path, capsys, args, named):
     out = tmp_path / "runs"
@@ -186,6 +185,14 @@ def test_bad_values_are_one_line_errors_and_write_nothing(tmp_path, capsys, args
     err = capsys.readouterr().err.strip().splitlines()
     assert status == 2 and len(err) == 1 and re.search(named, err[0]), err
     assert not out.exists()
+
+
+def test_without_ray_the_ray_executor_is_a_one_line_error(tmp_path, capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, "ray", None)  # as if not installed: `import ray` raises ImportError
+    out = tmp_path / "runs"
+    assert main([*TINY, "--executor", "ray", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "pip install 'ncedf[cluster]'" in err[0] and not out.exists()
 
 
 def test_ctrl_c_keeps_complete_episodes_and_the_same_command_finishes_the_sweep(swept, tmp_path):
