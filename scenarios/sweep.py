@@ -26,9 +26,11 @@ Locally (``--executor local``, the default) ``--workers`` spawned processes run
 the episodes (default: one per core). JAX's CPU client sizes its thread pool from
 the process's CPU affinity when it starts, so each worker narrows its affinity to
 its share of the cores, starts the client, and widens the affinity again: the
-pool keeps its size and the OS still spreads the workers over every core. (The
-installed jax 0.10 ignores ``XLA_FLAGS=--xla_cpu_multi_thread_eigen=false`` for
-this pool, and ``intra_op_parallelism_threads`` is not an XLA flag.) Episodes are
+pool keeps its size and the OS still spreads the workers over every core (a
+parallel program then runs at CPU time / wall time 1.0 in a 1-core worker, 1.9
+without the limit, on 2 cores). The installed jax 0.10 ignores
+``XLA_FLAGS=--xla_cpu_multi_thread_eigen=false`` for this pool (1.8), and
+``intra_op_parallelism_threads`` is not an XLA flag. Episodes are
 submitted grouped by configuration (everything but the two seeds), so a worker
 runs one configuration many times in a row and reuses the programs jitted for
 it; the workers share a persistent JAX compilation cache (``<out>/.jax-cache``),
@@ -46,6 +48,12 @@ At the end a table gives, per scenario, links, representation and controller,
 the outcome rates with their counts (read back from the recordings), the mean
 solver time per step, and the episodes per hour of one worker (3600 / the mean
 wall time of the episodes run this time, compilation included).
+
+Throughput measured on a 2-core CPU machine shared with other work
+(``--scenario spheres --envs 4 --shapes ncedf,spheres,pointcloud:1000 --workers 2``,
+release controller, 1000 rollouts, H = 12; 21-134 steps per episode, all successes):
+per worker 255 episodes/h with ncedf (126 ms per MPPI step), 512 with spheres
+(98 ms), 26 with pointcloud:1000 (2.5 s); the 12 episodes took 6.6 min.
 """
 
 from __future__ import annotations
