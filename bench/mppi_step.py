@@ -3,10 +3,10 @@
     python bench/mppi_step.py --links 4 5 7 --samples 800 --horizon 20 --points 500
     python bench/mppi_step.py --quick
 
-Scene: the paper's cluttered environment (Sec. VI-D; three boxes, points on their
-faces, two spheres of 30 surface points), exactly ``--points`` obstacle points,
-goal (4.8, 0, 3.6). The robot runs closed loop from the straight state with the
-broad-phase controller; the brute-force controller (``broad_phase=False``) is
+Scene: the paper's cluttered environment as ``scenarios.cluttered`` defines it
+(Sec. VI-D; three boxes, points on their faces, two spheres of 30 surface points)
+at t = 0, observed with about ``--points`` points, and its goal. The robot runs
+closed loop from the straight state with the broad-phase controller; the brute-force controller (``broad_phase=False``) is
 then run on the first ``--ref-steps`` of the same inputs (state, plan, key), so
 both see identical samples. Reported per (links, representation):
 
@@ -33,6 +33,7 @@ distance to the obstacle points.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import time
 
@@ -43,39 +44,18 @@ import numpy as np
 from ncedf.mppi import MPPI, MPPIConfig, mppi_step
 from ncedf.robot import RobotSpec, project_state
 from ncedf.shapes import make_shape
-
-BOXES = (((2.5, 0.0, 5.0), (1.0, 4.8, 3.0)), ((2.5, 0.0, 0.0), (1.0, 5.0, 2.0)), ((5.3, 0.0, 2.0), (2.0, 5.0, 1.0)))
-SPHERES = (((4.0, -4.5, 3.8), 0.5), ((4.0, 0.0, 2.2), 0.5))
-GOAL = (4.8, 0.0, 3.6)
+from scenarios import cluttered
+from scenarios.world import make_observer
 
 
 def cluttered_points(n: int, seed: int = 0) -> np.ndarray:
-    """``n`` obstacle points: 30 on each sphere, the rest uniform by area on the box faces."""
-    rng = np.random.default_rng(seed)
-    sphere_pts = []
-    for centre, radius in SPHERES:
-        v = rng.normal(size=(30, 3))
-        sphere_pts.append(np.asarray(centre) + radius * v / np.linalg.norm(v, axis=1, keepdims=True))
-    faces = []
-    for centre, size in BOXES:
-        c, s = np.asarray(centre), np.asarray(size)
-        for axis in range(3):
-            for sign in (-1.0, 1.0):
-                others = [i for i in range(3) if i != axis]
-                faces.append((c, s, axis, sign, s[others[0]] * s[others[1]], others))
-    areas = np.array([f[4] for f in faces])
-    n_box = max(n - 60, 0)
-    which = rng.choice(len(faces), size=n_box, p=areas / areas.sum())
-    box_pts = np.empty((n_box, 3))
-    for i, f in enumerate(which):
-        c, s, axis, sign, _, others = faces[f]
-        p = c.copy()
-        p[axis] += sign * s[axis] / 2
-        for o in others:
-            p[o] += (rng.random() - 0.5) * s[o]
-        box_pts[i] = p
-    pts = np.concatenate([box_pts] + sphere_pts)[:n]
-    return pts.astype(np.float32)
+    """About ``n`` observed points of ``scenarios.cluttered``'s world at t = 0: 30 on each
+    sphere and the box faces at the density that gives the rest (4 per m^2 gives the paper's ~500)."""
+    world = cluttered.make_world()
+    box_area = sum(2.0 * (sx * sy + sy * sz + sx * sz) for sx, sy, sz in (b.size for b in world.boxes))
+    sphere_count = len(world.spheres) * world.sphere_points
+    world = dataclasses.replace(world, density=max(n - sphere_count, 0) / box_area)
+    return make_observer(world, seed).observe(0.0)
 
 
 def build_shape(name, spec, model):
@@ -108,7 +88,7 @@ def run(links, rep, args, model, points):
     fast = MPPI(spec, shape, MPPIConfig(broad_phase=True, k1=args.k1, k2=args.k2, **base))
     ref = MPPI(spec, shape, MPPIConfig(broad_phase=False, **base))
     pts, mask = fast.pad_points(points)
-    goal = jnp.asarray(GOAL, jnp.float32)
+    goal = jnp.asarray(cluttered.GOAL, jnp.float32)
 
     state = fast.init(jax.random.PRNGKey(args.seed))
     arc = jnp.asarray(spec.straight_state(), jnp.float32)

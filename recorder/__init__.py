@@ -58,7 +58,7 @@ current step finish, then write the outcome "interrupted" and close both files; 
 refused unless `overwrite=True`; an unwritable folder fails before anything is opened
 (`RecorderError`, one line naming the path).
 
-Cost (bench/recorder.py, 7 links, 6720-vertex mesh every step, with link clearances): about 0.5 ms
+Cost (bench/recording_cost.py, 7 links, 6720-vertex mesh every step, with link clearances): about 0.5 ms
 CPU per step for the .rrd, 1.5 ms for the .mcap (zstd level 2), 2.2 ms for both; 9 and 10 MB per 100
 steps (the clearance colours add about 0.15 ms to the .rrd and 0.3 ms to the .mcap). A live viewer
 adds one `send_columns` per entity and step on a second stream.

@@ -21,7 +21,7 @@ from recorder.mcap_sink import McapSink
 from recorder.rerun_sink import RerunSink
 
 FORMATS = ("rrd", "mcap")
-#: Default MCAP mesh interval, chosen with bench/recorder.py to keep both sinks within 3 ms per step.
+#: Default MCAP mesh interval, chosen with bench/recording_cost.py to keep both sinks within 3 ms per step.
 MCAP_MESH_EVERY = 1
 _SIGNALS = (signal.SIGINT, signal.SIGTERM)
 

@@ -1,8 +1,8 @@
 """Recorder benchmark: logging overhead per step, file sizes, and `load_runs` over many runs.
 
-    python bench/recorder.py                          # 7 links, 300 steps, MCAP mesh every 1, 2, 5 steps
-    python bench/recorder.py --mcap-mesh-every 1 --steps 100
-    python bench/recorder.py --load-runs 4000         # also time load_runs over 4000 small runs
+    python bench/recording_cost.py                          # 7 links, 300 steps, MCAP mesh every 1, 2, 5 steps
+    python bench/recording_cost.py --mcap-mesh-every 1 --steps 100
+    python bench/recording_cost.py --load-runs 4000         # also time load_runs over 4000 small runs
 
 Synthetic 7-link data (`recorder.synthetic`): a mesh of 7 tubes x 30 rings x 32 points = 6720
 vertices, 500 obstacle points, a 20-point plan, backbone lines, state and metrics. The step data
