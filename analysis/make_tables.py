@@ -1,0 +1,71 @@
+"""Tables I-IV of the paper from a folder of recordings: Markdown (printed), LaTeX and CSV.
+
+    python analysis/make_tables.py [RUNS] [--out tables/]
+
+Reads every recording under RUNS (default runs/) through ``recorder.read``; each table puts the
+paper's figures beside ours. A table whose recordings are missing is skipped with a line naming
+the command that produces them; unreadable, unclosed or unfinished recordings are listed and
+left out.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+if __package__ in (None, ""):  # run as a script: make the repository importable
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from analysis.load import check_folder, load  # noqa: E402
+from analysis.tables import BUILDERS  # noqa: E402
+from recorder import RecorderError  # noqa: E402
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def parse_args(argv=None) -> argparse.Namespace:
+    p = _Parser(prog="python analysis/make_tables.py", description=__doc__.split("\n\n")[0])
+    p.add_argument("runs", nargs="?", default="runs", help="folder of recordings (default runs/)")
+    p.add_argument("--out", default="tables", help="output folder (default tables/)")
+    return p.parse_args(argv)
+
+
+def report_problems(rec, stream=sys.stderr) -> None:
+    if rec.problems:
+        print(f"left out {len(rec.problems)} recording(s):", file=stream)
+        for path, why in rec.problems:
+            print(f"  {path}: {why}", file=stream)
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    try:
+        check_folder(args.runs)
+        rec = load(args.runs)
+    except RecorderError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("interrupted while reading; nothing written", file=sys.stderr)
+        return 130
+    print(f"read {rec.files} recordings under {args.runs} in {rec.seconds:.2f} s "
+          f"({len(rec.runs)} runs used)", file=sys.stderr)
+    report_problems(rec)
+    out = Path(args.out)
+    for name, build in BUILDERS.items():
+        table = build(rec)
+        if isinstance(table, str):
+            print(table, file=sys.stderr)
+            continue
+        paths = table.write(out)
+        print(table.markdown())
+        print(f"wrote {', '.join(str(p) for p in paths)}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,30 @@
+"""The paper's published figures (Tables I-IV; RTX 4090), one source for the tables and figures.
+
+From the paper (../shared/paper/n-cedf-paper.tex) as transcribed in the project's reference notes.
+"""
+
+from __future__ import annotations
+
+HARDWARE = "NVIDIA RTX 4090 (paper)"
+
+#: Table I: (layers, width) -> (inference ms, MPPI step s, MAE m, RMSE m, MOE m).
+TABLE1 = {
+    (2, 16): (0.0136, 0.0156, 0.126, 0.167, 0.037), (2, 24): (0.0140, 0.0205, 0.105, 0.137, 0.023),
+    (2, 32): (0.0139, 0.0234, 0.089, 0.116, 0.014), (3, 16): (0.0179, 0.0241, 0.040, 0.054, 0.009),
+    (3, 24): (0.0181, 0.0337, 0.033, 0.044, 0.006), (3, 32): (0.0178, 0.0415, 0.026, 0.037, 0.004),
+    (4, 16): (0.0218, 0.0331, 0.017, 0.024, 0.002), (4, 24): (0.0218, 0.0471, 0.017, 0.025, 0.002),
+    (4, 32): (0.0220, 0.0596, 0.016, 0.024, 0.002), (5, 16): (0.0257, 0.0422, 0.015, 0.020, 0.001),
+    (5, 24): (0.0264, 0.0603, 0.014, 0.020, 0.001), (5, 32): (0.0262, 0.0772, 0.013, 0.018, 0.001),
+}
+#: Table II (4 x 16): over-estimation loss used -> (MAE, RMSE, MOE) m.
+TABLE2 = {True: (0.017, 0.024, 0.002), False: (0.018, 0.024, 0.011)}
+#: Table III (1000 environments): representation -> (success, collision, stuck, MPPI step s).
+TABLE3_ENVIRONMENTS = 1000
+TABLE3 = {
+    "ncedf": (0.986, 0.006, 0.008, 0.006), "spheres": (0.872, 0.005, 0.123, 0.005),
+    "pointcloud:1000": (0.942, 0.052, 0.006, 0.062), "pointcloud:5000": (0.984, 0.008, 0.008, 0.284),
+}
+#: Table IV: links -> (MPPI step s mean, std, reach step).
+TABLE4 = {4: (0.0331, 0.0005, 158), 5: (0.0419, 0.0008, 82), 7: (0.0607, 0.0006, 43)}
+#: Figs. 5-7: the time steps of the paper's snapshots, per link count (the last is its reach step).
+SNAPSHOT_STEPS = {4: (20, 52, 104, 158), 5: (16, 82), 7: (14, 43)}

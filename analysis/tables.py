@@ -1,0 +1,213 @@
+"""Tables I-IV from recordings (``analysis.load.Recordings``), each beside the paper's figures.
+
+A builder returns a ``report.Table`` or, when its inputs are missing, a one-line note naming the
+command that produces them.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pandas as pd
+
+from analysis import paper
+from analysis.load import Recordings, hardware
+from analysis.report import Table, fmt, fmt_pm, fmt_rate
+from analysis.stats import mean_std, wilson
+
+REPRODUCE = "python -m scenarios.reproduce {table} --out RUNS"
+JUDGE_NOTE = ("Our judge differs from the paper's: a collision is any instant with exact robot-obstacle distance "
+              "< 0 on the continuous motion between control steps (obstacles moving), not a check at the "
+              "control steps with the controller's own representation; collision rates are therefore not lower "
+              "than a per-step check would give.")
+QUICK_NOTE = "Rows marked (quick) come from `--quick` runs: tiny budgets, numbers only show the pipeline works."
+
+
+def _missing(table: str, what: str) -> str:
+    return f"{table}: skipped, no {what} recordings; produce them with `{REPRODUCE.format(table=table)}`"
+
+
+def _col(df: pd.DataFrame, name: str, default=np.nan) -> pd.Series:
+    return df[name] if name in df else pd.Series(default, index=df.index)
+
+
+def _quick_tag(quick: bool) -> str:
+    return " (quick)" if quick else ""
+
+
+def _rates(outcomes: pd.Series) -> dict:
+    """Counts, rates and Wilson intervals of success / collision / stuck."""
+    n = int(len(outcomes))
+    out = {"episodes": n}
+    for name in ("success", "collision", "stuck"):
+        k = int((outcomes == name).sum())
+        low, high = wilson(k, n)
+        out.update({f"n_{name}": k, name: k / n if n else math.nan, f"{name}_low": low, f"{name}_high": high})
+    return out
+
+
+def _solver(rec: Recordings, run_ids) -> tuple[float, float, int]:
+    """Mean and std of the MPPI step time over every step of these runs, s."""
+    s = rec.steps[rec.steps["run_id"].isin(set(run_ids))]
+    return mean_std(_col(s, "solver_ms") / 1e3)
+
+
+# ---------------------------------------------------------------- Tables I and II
+def _networks(rec: Recordings, experiment: str) -> pd.DataFrame:
+    """One row per recorded network of ``experiment``: its final validation metrics and timings."""
+    runs = rec.scenario("training")
+    if runs.empty:
+        return runs
+    runs = runs[_col(runs, "experiment", "") == experiment]
+    rows = []
+    for _, run in runs.iterrows():
+        s = rec.steps[rec.steps["run_id"] == run["run_id"]]
+        trained = s[_col(s, "mae").notna()]
+        if trained.empty:
+            continue
+        last = trained.sort_values("step").iloc[-1]
+        inf_mean, inf_std, inf_n = mean_std(_col(s, "inference_ms"))
+        mppi_mean, mppi_std, mppi_n = mean_std(_col(s, "mppi_step_ms"))
+        rows.append({
+            "encoding": run["architecture.encoding"], "layers": int(run["architecture.layers"]),
+            "width": int(run["architecture.width"]), "lambda_over": float(run["training.lambda_over"]),
+            "quick": bool(run["quick"]), "epochs": int(last["step"]), "folder": run["folder"],
+            "mae": last["mae"], "rmse": last["rmse"], "moe": last["moe"], "over_p999": last["over_p999"],
+            "inference_ms_mean": inf_mean, "inference_ms_std": inf_std,
+            "mppi_step_ms_mean": mppi_mean, "mppi_step_ms_std": mppi_std, "timing_repeats": mppi_n,
+            "mppi_samples": int(run["timing.mppi_samples"]), "mppi_horizon": int(run["timing.mppi_horizon"]),
+            "mppi_points": int(run["timing.mppi_points"]), "validation_samples": int(run["validation.samples"]),
+        })
+    return pd.DataFrame(rows)
+
+
+def table1(rec: Recordings) -> Table | str:
+    nets = _networks(rec, "table1")
+    if nets.empty:
+        return _missing("table1", "Table I network")
+    nets = nets.sort_values(["quick", "encoding", "layers", "width"]).reset_index(drop=True)
+    ref = [paper.TABLE1.get((r.layers, r.width), (np.nan,) * 5) for r in nets.itertuples()]
+    for i, name in enumerate(("paper_inference_ms", "paper_mppi_step_s", "paper_mae", "paper_rmse", "paper_moe")):
+        nets[name] = [r[i] for r in ref]
+    rows = [[f"{r.encoding}{_quick_tag(r.quick)}", f"{r.layers} × {r.width}", str(r.epochs),
+             f"{fmt(r.mae)} / {fmt(r.rmse)} / {fmt(r.moe)}", fmt(r.over_p999),
+             f"{fmt(r.paper_mae)} / {fmt(r.paper_rmse)} / {fmt(r.paper_moe)}",
+             fmt_pm(r.inference_ms_mean, r.inference_ms_std, 3), fmt(r.paper_inference_ms, 4),
+             fmt_pm(r.mppi_step_ms_mean / 1e3, r.mppi_step_ms_std / 1e3, 4), fmt(r.paper_mppi_step_s, 4)]
+            for r in nets.itertuples()]
+    settings = sorted({(r.mppi_samples, r.mppi_horizon, r.mppi_points, r.timing_repeats, r.validation_samples)
+                       for r in nets.itertuples()})
+    notes = [f"Ours: {hardware(rec, nets['folder'])}. Paper: {paper.HARDWARE}.",
+             "Errors on exact distances (validation: other configurations, uniform points in the training box); "
+             "p99.9: 99.9th percentile of the over-estimation max(0, pred - true), m. Paper: 100 epochs.",
+             *(f"Timing: {n} repeats after compilation (mean ± std); inference = whole-robot distance of one "
+               f"4-link configuration to {p} points; MPPI = one step, 4 links, {s} samples, horizon {h}, {p} "
+               f"points (paper: 800 samples, H 20, ~500 points); validation on {v} samples."
+               for s, h, p, n, v in settings)]
+    if nets["quick"].any():
+        notes.append(QUICK_NOTE)
+    header = ["encoding", "layers × width", "epochs", "MAE / RMSE / MOE (m)", "over p99.9 (m)",
+              "paper MAE / RMSE / MOE", "inference (ms)", "paper (ms)", "MPPI step (s)", "paper (s)"]
+    return Table("table1", "Table I: network size against accuracy and time", header, rows, notes,
+                 nets.drop(columns="folder"))
+
+
+def table2(rec: Recordings) -> Table | str:
+    nets = _networks(rec, "table2")
+    if nets.empty:
+        return _missing("table2", "Table II network")
+    nets = nets.sort_values(["quick", "encoding", "lambda_over"], ascending=[True, True, False]).reset_index(drop=True)
+    ref = [paper.TABLE2[r.lambda_over > 0] for r in nets.itertuples()]
+    for i, name in enumerate(("paper_mae", "paper_rmse", "paper_moe")):
+        nets[name] = [r[i] for r in ref]
+    rows = [[f"{'with' if r.lambda_over > 0 else 'without'} (λ_O = {r.lambda_over:g}){_quick_tag(r.quick)}",
+             f"{r.layers} × {r.width}, {r.encoding}", str(r.epochs), fmt(r.mae), fmt(r.rmse), fmt(r.moe),
+             fmt(r.over_p999), f"{fmt(r.paper_mae)} / {fmt(r.paper_rmse)} / {fmt(r.paper_moe)}"]
+            for r in nets.itertuples()]
+    notes = [f"Ours: {hardware(rec, nets['folder'])}. Errors on exact distances, m; "
+             "p99.9: 99.9th percentile of the over-estimation. Paper: 100 epochs."]
+    if nets["quick"].any():
+        notes.append(QUICK_NOTE)
+    header = ["over-estimation loss", "network", "epochs", "MAE", "RMSE", "MOE", "over p99.9", "paper MAE / RMSE / MOE"]
+    return Table("table2", "Table II: the over-estimation loss (4 × 16)", header, rows, notes,
+                 nets.drop(columns="folder"))
+
+
+# ---------------------------------------------------------------- Tables III and IV
+_EPISODE_KEYS = ("controller", "mppi.samples", "mppi.horizon", "max_steps", "quick")
+
+
+def _groups(runs: pd.DataFrame, keys) -> list[tuple[tuple, pd.DataFrame]]:
+    return list(runs.groupby(list(keys), sort=True, dropna=False))
+
+
+def table3(rec: Recordings) -> Table | str:
+    runs = rec.scenario("spheres")
+    if runs.empty:
+        return _missing("table3", "dynamic-sphere episode")
+    rows, data = [], []
+    order = {s: i for i, s in enumerate(paper.TABLE3)}
+    groups = _groups(runs, ("shape", *_EPISODE_KEYS))
+    groups.sort(key=lambda g: (g[0][5], order.get(g[0][0], 99), g[0][0], *map(str, g[0][1:5])))
+    for (shape, controller, samples, horizon, max_steps, quick), g in groups:
+        r = _rates(g["outcome"])
+        t_mean, t_std, t_n = _solver(rec, g["run_id"])
+        ref = paper.TABLE3.get(shape, (np.nan,) * 4)
+        data.append({"shape": shape, "controller": controller, "samples": int(samples), "horizon": int(horizon),
+                     "max_steps": int(max_steps), "quick": bool(quick), **r, "mppi_step_s_mean": t_mean,
+                     "mppi_step_s_std": t_std, "mppi_steps": t_n, "paper_success": ref[0], "paper_collision": ref[1],
+                     "paper_stuck": ref[2], "paper_mppi_step_s": ref[3], "paper_environments": paper.TABLE3_ENVIRONMENTS})
+        rows.append([f"{shape}{_quick_tag(quick)}", f"{controller} ({samples}, H {horizon})", str(r["episodes"]),
+                     fmt_rate(r["success"], r["success_low"], r["success_high"]), fmt(ref[0]),
+                     fmt_rate(r["collision"], r["collision_low"], r["collision_high"]), fmt(ref[1]),
+                     fmt_rate(r["stuck"], r["stuck_low"], r["stuck_high"]), fmt(ref[2]),
+                     fmt_pm(t_mean, t_std, 4), fmt(ref[3])])
+    df = pd.DataFrame(data)
+    notes = [f"Ours: {hardware(rec, runs['folder'])}, one CPU core per episode. Paper: {paper.HARDWARE}, "
+             f"{paper.TABLE3_ENVIRONMENTS} environments per representation.",
+             "Rates with Wilson 95% intervals over the episodes (environments) of each row; MPPI step time: "
+             "mean ± std over every step of those episodes, s.", JUDGE_NOTE]
+    if df["quick"].any():
+        notes.append(QUICK_NOTE)
+    header = ["representation", "controller (samples, H)", "environments", "success [95% CI]", "paper",
+              "collision [95% CI]", "paper", "stuck [95% CI]", "paper", "MPPI step (s)", "paper (s)"]
+    return Table("table3", "Table III: robot-shape representations among dynamic spheres", header, rows, notes, df)
+
+
+def table4(rec: Recordings) -> Table | str:
+    runs = rec.scenario("cluttered")
+    if runs.empty:
+        return _missing("table4", "cluttered episode")
+    rows, data = [], []
+    groups = _groups(runs, ("links", "shape", *_EPISODE_KEYS))
+    groups.sort(key=lambda g: (g[0][6], g[0][0], *map(str, g[0][1:6])))
+    for (links, shape, controller, samples, horizon, max_steps, quick), g in groups:
+        r = _rates(g["outcome"])
+        t_mean, t_std, t_n = _solver(rec, g["run_id"])
+        reached = g.loc[g["outcome"] == "success", "reach_step"]
+        reach_mean, reach_std, reach_n = mean_std(reached)
+        ref = paper.TABLE4.get(int(links), (np.nan,) * 3)
+        data.append({"links": int(links), "shape": shape, "controller": controller, "samples": int(samples),
+                     "horizon": int(horizon), "max_steps": int(max_steps), "quick": bool(quick), **r,
+                     "mppi_step_s_mean": t_mean, "mppi_step_s_std": t_std, "mppi_steps": t_n,
+                     "reach_step_mean": reach_mean, "reach_step_std": reach_std, "reached": reach_n,
+                     "paper_mppi_step_s_mean": ref[0], "paper_mppi_step_s_std": ref[1], "paper_reach_step": ref[2]})
+        rows.append([f"{int(links)}{_quick_tag(quick)}", shape, f"{controller} ({samples}, H {horizon})",
+                     str(r["episodes"]), fmt_rate(r["success"], r["success_low"], r["success_high"]),
+                     fmt_rate(r["collision"], r["collision_low"], r["collision_high"]),
+                     fmt_pm(t_mean, t_std, 4), fmt_pm(ref[0], ref[1], 4),
+                     fmt_pm(reach_mean, reach_std, 1) + (f" (n={reach_n})" if reach_n else ""), fmt(ref[2], 0)])
+    df = pd.DataFrame(data)
+    notes = [f"Ours: {hardware(rec, runs['folder'])}, one CPU core per episode. Paper: {paper.HARDWARE}, one run "
+             "per link count.",
+             "Episodes = controller seeds in the paper's fixed scene; rates with Wilson 95% intervals; MPPI step "
+             "time mean ± std over every step; reach step mean ± std over the successful episodes (n).", JUDGE_NOTE]
+    if df["quick"].any():
+        notes.append(QUICK_NOTE)
+    header = ["links", "representation", "controller (samples, H)", "seeds", "success [95% CI]",
+              "collision [95% CI]", "MPPI step (s)", "paper (s)", "reach step", "paper"]
+    return Table("table4", "Table IV: cluttered scene, 4 / 5 / 7 links", header, rows, notes, df)
+
+
+BUILDERS = {"table1": table1, "table2": table2, "table3": table3, "table4": table4}

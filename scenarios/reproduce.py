@@ -1,0 +1,402 @@
+"""The experiments behind the paper's Tables I-IV, written as recordings for ``analysis/``.
+
+    python -m scenarios.reproduce {table1,table2,table3,table4,all} --out runs/ [--quick]
+
+Each table has its folder under ``--out`` (``table1`` ... ``table4``; with
+``--quick`` ``table1-quick`` ...), holding one recording per network or episode
+and ``experiment.mcap``, whose ``/run`` metadata names the experiment, its
+settings, whether it is quick, the command, the date, the machine and the
+package versions (quick results are marked there and in every table).
+
+* Table I: the 12 networks (2-5 layers x width 16/24/32), both input encodings,
+  trained with ``ncedf.train`` on exact labels for an epoch budget
+  (``--epochs``, default the paper's 100). A network's recording holds one
+  ``/metrics`` row per epoch (loss terms, validation MAE, RMSE, MOE, p99.9
+  over-estimation on exact distances), then ``--timing-repeats`` rows of
+  timings: ``inference_ms`` (whole-robot distance, one 4-link configuration,
+  500 points) and ``mppi_step_ms`` (4 links, 800 samples, horizon 20, the
+  cluttered scene's ~500 observed points). Weights are saved beside it.
+* Table II: 4 x 16 with and without the over-estimation loss, recorded the same way.
+* Table III: the dynamic-sphere sweep, shapes ncedf, spheres, pointcloud:1000,
+  pointcloud:5000 x every controller of ``scenarios.presets.CONTROLLERS``
+  (``--envs`` environments; ``--envs-5000`` for pointcloud:5000).
+* Table IV: cluttered, 4 / 5 / 7 links x ``--seeds`` seeds x every controller.
+
+Tables III and IV run through ``scenarios.sweep.run_sweep``. Everything resumes:
+a network or episode whose recording is closed with a final outcome is skipped,
+so the same command finishes an interrupted experiment.
+
+``--quick`` shrinks every experiment (Table I: 2 and 4 layers x width 16 and 32,
+1 epoch on a 20-configuration, 12^3-grid set; 64 MPPI samples, horizon 8, 20
+steps; one environment or seed) so that
+``all --quick`` runs in minutes on a laptop; its numbers only show the pipeline works.
+
+Ctrl-C / SIGTERM: the network being trained is recorded as interrupted (the
+next run trains it again), complete recordings are kept; exit 130 / 143.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime
+import os
+import platform
+import signal
+import sys
+import time
+from pathlib import Path
+
+#: Table I grid (paper): Dense layers incl. output x hidden width.
+LAYERS = (2, 3, 4, 5)
+WIDTHS = (16, 24, 32)
+#: Table II network.
+TABLE2_NETWORK = (4, 16)
+#: Table III representations.
+TABLE3_SHAPES = ("ncedf", "spheres", "pointcloud:1000", "pointcloud:5000")
+#: Table IV link counts.
+TABLE4_LINKS = (4, 5, 7)
+#: Timing setting of Table I (paper Sec. VI-B): links, MPPI samples, horizon.
+TIMING_LINKS, TIMING_SAMPLES, TIMING_HORIZON = 4, 800, 20
+#: Obstacle points of the inference timing.
+INFERENCE_POINTS = 500
+TABLES = ("table1", "table2", "table3", "table4")
+EXPERIMENT = "experiment"  # stem of an experiment's manifest recording
+PAPER_EPOCHS = 100
+
+
+@dataclasses.dataclass(frozen=True)
+class Budget:
+    """How big each experiment is.
+
+    Attributes:
+      epochs: training epochs per network.
+      configs, grid, surface: training set (configurations, grid points per axis, surface points).
+      val_configs, val_points, val_surface: validation set.
+      timing_repeats: timed inference calls and MPPI steps per network (after compilation).
+      timing_samples, timing_horizon: MPPI setting of the step timing.
+      envs, envs_5000: Table III environments (pointcloud:5000: its own count).
+      seeds: Table IV controller seeds.
+      samples, horizon, max_steps: episode overrides (None: the controller's and scenario's).
+      workers: sweep worker processes (None: one per core).
+      layers, widths: the Table I grid.
+      quick: a smoke-sized run.
+    """
+
+    epochs: int = PAPER_EPOCHS
+    configs: int = 250
+    grid: int = 32
+    surface: int = 1600
+    val_configs: int = 100
+    val_points: int = 4096
+    val_surface: int = 256
+    timing_repeats: int = 20
+    timing_samples: int = TIMING_SAMPLES
+    timing_horizon: int = TIMING_HORIZON
+    envs: int = 200
+    envs_5000: int = 50
+    seeds: int = 10
+    samples: int | None = None
+    horizon: int | None = None
+    max_steps: int | None = None
+    workers: int | None = None
+    layers: tuple[int, ...] = LAYERS
+    widths: tuple[int, ...] = WIDTHS
+    quick: bool = False
+
+
+QUICK = Budget(epochs=1, configs=20, grid=12, surface=200, val_configs=10, val_points=512, val_surface=32,
+               timing_repeats=3, timing_samples=64, timing_horizon=8, envs=1, envs_5000=1, seeds=1,
+               samples=64, horizon=8, max_steps=20, layers=(2, 4), widths=(16, 32), quick=True)
+
+
+def folder(out: Path, table: str, budget: Budget) -> Path:
+    """The folder of one table's recordings."""
+    return Path(out) / (f"{table}-quick" if budget.quick else table)
+
+
+def machine() -> dict:
+    """The hardware and software a run used (for the tables' captions)."""
+    import jax
+
+    from scenarios.episode import package_versions
+
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as f:
+            cpu = next(line.split(":", 1)[1].strip() for line in f if line.startswith("model name"))
+    except (OSError, StopIteration):
+        pass
+    return {"cpu": cpu, "cores": os.cpu_count(), "device": str(jax.devices()[0].platform),
+            "device_kind": jax.devices()[0].device_kind, "system": platform.platform(),
+            "versions": package_versions()}
+
+
+def write_manifest(where: Path, table: str, budget: Budget, command: str, settings: dict) -> None:
+    """``experiment.mcap``: the experiment's /run metadata (rewritten by every run of it)."""
+    from recorder import Recorder
+
+    meta = {"run_id": f"{where.name}/{EXPERIMENT}", "scenario": "experiment", "experiment": table, "quick": budget.quick, "budget": dataclasses.asdict(budget),
+            "settings": settings, "command": command, "date": datetime.datetime.now(datetime.UTC).isoformat(),
+            "machine": machine()}
+    where.mkdir(parents=True, exist_ok=True)
+    with Recorder(where / EXPERIMENT, meta, ("mcap",), overwrite=True) as rec:
+        rec.finish({"outcome": "success", "steps": 0})
+
+
+# ---------------------------------------------------------------- Tables I and II: networks
+@dataclasses.dataclass(frozen=True)
+class Network:
+    """One network of Table I or II."""
+
+    layers: int
+    width: int
+    encoding: str
+    lambda_over: float
+
+    @property
+    def name(self) -> str:
+        return f"net_{self.encoding}_{self.layers}x{self.width}_lo{self.lambda_over:g}"
+
+
+def networks(table: str, budget: Budget) -> list[Network]:
+    from ncedf.model import ENCODINGS
+    from ncedf.train import TrainConfig
+
+    if table == "table1":
+        return [Network(l, w, e, TrainConfig.lambda_over) for e in ENCODINGS for l in budget.layers
+                for w in budget.widths]
+    layers, width = TABLE2_NETWORK
+    from ncedf.model import ModelConfig
+
+    return [Network(layers, width, ModelConfig.encoding, lo) for lo in (TrainConfig.lambda_over, 0.0)]
+
+
+def timing_points(n_points: int | None = None):
+    """The cluttered scene's observed cloud at t = 0 (paper: about 500 points), float32 (P, 3)."""
+    from scenarios.episode import EpisodeSettings, build_scene
+
+    scene = build_scene(EpisodeSettings("cluttered", TIMING_LINKS, 0))
+    points = scene.observer.observe(0.0)
+    return points if n_points is None else points[:n_points]
+
+
+def mppi_step_ms(model, points, budget: Budget, seed: int = 0) -> list[float]:
+    """Wall times (ms) of ``budget.timing_repeats`` MPPI steps after compilation, 4 links, N-CEDF shape."""
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    from ncedf.mppi import MPPI
+    from ncedf.robot import RobotSpec
+    from ncedf.shapes import make_shape
+    from scenarios.cluttered import GOAL
+    from scenarios.presets import mppi_config
+
+    spec = RobotSpec(TIMING_LINKS)
+    config = mppi_config("paper", "cluttered", TIMING_LINKS, n_points=len(points), samples=budget.timing_samples,
+                         horizon=budget.timing_horizon)
+    mppi = MPPI(spec, make_shape("ncedf", spec, model=model), config)
+    state = mppi.init(jax.random.PRNGKey(seed))
+    arc = jnp.asarray(spec.straight_state(), jnp.float32)
+    goal = jnp.asarray(GOAL, jnp.float32)
+    jax.block_until_ready(mppi.step(state, arc, goal, points))
+    times = []
+    for _ in range(budget.timing_repeats):
+        start = time.perf_counter()
+        action, state, _ = jax.block_until_ready(mppi.step(state, arc, goal, points))
+        times.append(1e3 * (time.perf_counter() - start))
+        arc = arc + np.asarray(action) * config.dt
+    return times
+
+
+def inference_times_ms(model, points, repeats: int, seed: int = 0) -> list[float]:
+    """Wall times (ms) of the whole-robot distance of one 4-link configuration to ``points``."""
+    import jax
+
+    from ncedf.robot import RobotSpec, sample_arc_lengths
+
+    spec = RobotSpec(TIMING_LINKS, model.spec.length, model.spec.radius, model.spec.l_min, model.spec.l_max)
+    arc = sample_arc_lengths(jax.random.PRNGKey(seed), spec, (TIMING_LINKS,))
+    fn = jax.jit(model.robot_distance)
+    fn(points, arc).block_until_ready()
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn(points, arc).block_until_ready()
+        times.append(1e3 * (time.perf_counter() - start))
+    return times
+
+
+def train_network(net: Network, where: Path, budget: Budget, data, val, points, seed: int) -> None:
+    """Train, evaluate and time one network; record it to ``where/<net.name>.mcap``, weights beside it."""
+    from ncedf.model import ModelConfig, save_model
+    from ncedf.robot import RobotSpec
+    from ncedf.train import TrainConfig, train
+    from recorder import Recorder
+
+    spec = RobotSpec(n_links=1)
+    model_cfg = ModelConfig(net.layers, net.width, net.encoding)
+    cfg = TrainConfig(epochs=budget.epochs, lambda_over=net.lambda_over, seed=seed)
+    meta = {"run_id": f"{where.name}/{net.name}", "scenario": "training", "experiment": where.name.removesuffix("-quick"), "quick": budget.quick,
+            "network": dataclasses.asdict(net), "architecture": dataclasses.asdict(model_cfg),
+            "training": dataclasses.asdict(cfg), "dataset": {"hash": data.key, "samples": data.n_samples},
+            "validation": {"hash": val.key, "samples": int(val.distances.size)},
+            "timing": {"links": TIMING_LINKS, "inference_points": int(len(points)),
+                       "mppi_samples": budget.timing_samples, "mppi_horizon": budget.timing_horizon,
+                       "mppi_points": int(len(points)), "repeats": budget.timing_repeats}}
+    with Recorder(where / net.name, meta, ("mcap",), overwrite=True) as rec:
+        def record(row):
+            rec.log_step(row["epoch"], float(row["epoch"]),
+                         metrics={k: float(v) for k, v in row.items() if k != "epoch"})
+
+        model, history = train(model_cfg, cfg, data, val, spec, progress=False, on_epoch=record)
+        inference = inference_times_ms(model, points, budget.timing_repeats, seed)
+        mppi = mppi_step_ms(model, points, budget, seed)
+        for i, (a, b) in enumerate(zip(inference, mppi)):
+            step = budget.epochs + 1 + i
+            rec.log_step(step, float(step), metrics={"inference_ms": a, "mppi_step_ms": b})
+        save_model(where / net.name, model.params, model_cfg, spec,
+                   {"metrics": {k: v for k, v in history[-1].items() if k != "epoch"}}, model.domain)
+        rec.finish({"outcome": "success", "steps": len(history)})
+
+
+def run_networks(table: str, out: Path, budget: Budget, seed: int, command: str) -> int:
+    """Train every network of ``table`` not yet recorded; 0."""
+    from tqdm import tqdm
+
+    from ncedf.data import DatasetConfig, ValidationConfig, load_dataset
+    from ncedf.robot import RobotSpec
+    from scenarios.sweep import read_complete
+
+    where = folder(out, table, budget)
+    todo = [n for n in networks(table, budget) if read_complete(where / n.name, ("mcap",)) is None]
+    data_cfg = DatasetConfig(n_configs=budget.configs, grid=budget.grid, n_surface=budget.surface, seed=seed)
+    val_cfg = ValidationConfig(n_configs=budget.val_configs, n_points=budget.val_points, n_surface=budget.val_surface)
+    write_manifest(where, table, budget, command, {"dataset": dataclasses.asdict(data_cfg),
+                                                   "validation": dataclasses.asdict(val_cfg), "seed": seed})
+    print(f"{table}: {len(networks(table, budget))} networks in {where}, {len(todo)} to train", file=sys.stderr)
+    if not todo:
+        return 0
+    spec = RobotSpec(n_links=1)
+    data, val = load_dataset(data_cfg, spec), load_dataset(val_cfg, spec)
+    points = timing_points(INFERENCE_POINTS)
+    for net in tqdm(todo, desc=table, unit="network", file=sys.stderr, dynamic_ncols=True):
+        train_network(net, where, budget, data, val, points, seed)
+    return 0
+
+
+# ---------------------------------------------------------------- Tables III and IV: sweeps
+def sweep_episodes(table: str, budget: Budget):
+    """Every episode of Table III or IV."""
+    from scenarios.presets import CONTROLLERS
+    from scenarios.sweep import sweep_settings
+
+    common = {k: v for k, v in (("samples", budget.samples), ("horizon", budget.horizon),
+                                ("max_steps", budget.max_steps)) if v is not None}
+    if table == "table3":
+        small = [s for s in TABLE3_SHAPES if s != "pointcloud:5000"]
+        return (sweep_settings(["spheres"], [4], small, CONTROLLERS, budget.envs, 1, **common)
+                + sweep_settings(["spheres"], [4], ["pointcloud:5000"], CONTROLLERS, budget.envs_5000, 1, **common))
+    return sweep_settings(["cluttered"], list(TABLE4_LINKS), ["ncedf"], CONTROLLERS, 1, budget.seeds, **common)
+
+
+def run_episodes(table: str, out: Path, budget: Budget, seed: int, command: str) -> int:
+    """Run the sweep of ``table`` (resumes); the sweep's exit status."""
+    from scenarios.presets import CONTROLLERS
+    from scenarios.sweep import run_sweep, summary_table
+
+    where = folder(out, table, budget)
+    episodes = sweep_episodes(table, budget)
+    write_manifest(where, table, budget, command, {"controllers": list(CONTROLLERS), "episodes": len(episodes)})
+    report = run_sweep(episodes, where, workers=budget.workers)
+    if report.signum is not None:
+        return report.exit_status
+    print(summary_table(report), file=sys.stderr)
+    return report.exit_status
+
+
+def run_table(table: str, out: Path, budget: Budget, seed: int, command: str) -> int:
+    if table in ("table1", "table2"):
+        return run_networks(table, out, budget, seed, command)
+    return run_episodes(table, out, budget, seed, command)
+
+
+# ---------------------------------------------------------------- CLI
+def parse_args(argv=None):
+    from scenarios.cli import OneLineParser
+
+    p = OneLineParser(prog="python -m scenarios.reproduce", description=__doc__.split("\n\n")[0],
+                      epilog="Exit status: 0 done, 1 some episodes failed, 2 bad arguments, 130/143 interrupted "
+                             "(run the same command again to finish).")
+    p.add_argument("table", choices=(*TABLES, "all"), help="which experiment")
+    p.add_argument("--out", default="runs", help="folder of the recordings (default runs/)")
+    p.add_argument("--quick", action="store_true", help="a smoke-sized version of every experiment (minutes)")
+    p.add_argument("--epochs", type=int, help=f"training epochs per network (default {PAPER_EPOCHS}, quick 1)")
+    p.add_argument("--envs", type=int, help=f"Table III environments per representation (default {Budget.envs})")
+    p.add_argument("--envs-5000", type=int, help=f"Table III environments for pointcloud:5000 "
+                                                 f"(default {Budget.envs_5000})")
+    p.add_argument("--seeds", type=int, help=f"Table IV seeds (default {Budget.seeds})")
+    p.add_argument("--workers", type=int, help="sweep worker processes (default: one per core)")
+    p.add_argument("--seed", type=int, default=0, help="training seed (default 0)")
+    return p.parse_args(argv)
+
+
+def budget_from(args) -> Budget:
+    base = QUICK if args.quick else Budget()
+    changes = {k: getattr(args, k) for k in ("epochs", "envs", "envs_5000", "seeds", "workers")
+               if getattr(args, k) is not None}
+    for name, value in changes.items():
+        if value < 1:
+            raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {value}")
+    return dataclasses.replace(base, **changes)
+
+
+def main(argv=None) -> int:
+    from recorder import RecordingInterrupted
+    from scenarios.cli import EXIT_STATUS, Stopped
+
+    args = parse_args(argv)
+    try:
+        budget = budget_from(args)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    out = Path(args.out)
+    existing = next(p for p in (out.resolve(), *out.resolve().parents) if p.exists())
+    if not existing.is_dir() or not os.access(existing, os.W_OK | os.X_OK):
+        print(f"error: cannot write recordings to {out}: {existing} is not a writable folder", file=sys.stderr)
+        return 2
+    command = "python -m scenarios.reproduce " + " ".join(sys.argv[1:] if argv is None else argv)
+
+    def stop(signum, frame):
+        raise Stopped(signum)
+
+    previous = {sig: signal.signal(sig, stop) for sig in EXIT_STATUS}
+    status = 0
+    try:
+        for table in TABLES if args.table == "all" else (args.table,):
+            start = time.perf_counter()
+            code = run_table(table, out, budget, args.seed, command)
+            print(f"{table}: done in {time.perf_counter() - start:.0f} s (exit {code})", file=sys.stderr)
+            if code in EXIT_STATUS.values():
+                print(f"interrupted: complete recordings under {out} are kept; run the same command to finish",
+                      file=sys.stderr)
+                return code
+            status = max(status, code)
+    except Stopped as exc:
+        print(f"stopped by {exc}: complete recordings under {out} are kept; run the same command to finish",
+              file=sys.stderr)
+        return EXIT_STATUS[exc.signum]
+    except RecordingInterrupted as exc:  # a signal while a network was recorded: it is marked interrupted
+        signum = signal.SIGTERM if "SIGTERM" in str(exc) else signal.SIGINT
+        print(f"stopped by {signum.name}: the network in training is recorded as interrupted, complete "
+              f"recordings under {out} are kept; run the same command to finish", file=sys.stderr)
+        return EXIT_STATUS[signum]
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    return status
+
+
+if __name__ == "__main__":
+    sys.exit(main())
