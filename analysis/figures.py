@@ -1,0 +1,264 @@
+"""The paper's figures from recordings (and, for Fig. 3 only, from the model itself).
+
+Each builder returns ``(matplotlib Figure, pandas DataFrame of the plotted data)`` or a one-line
+note saying why it was skipped. Styling for a paper column: 3.5 in wide, 8 pt text, black and grey
+with distinct line styles and markers so the figures survive greyscale printing.
+"""
+
+from __future__ import annotations
+
+import math
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+from matplotlib.patches import Circle, Rectangle  # noqa: E402
+
+from analysis import paper  # noqa: E402
+from analysis.load import Recordings  # noqa: E402
+from analysis.scene import snapshots  # noqa: E402
+from analysis.stats import mean_std, wilson  # noqa: E402
+from recorder import RecorderError, load_run  # noqa: E402
+
+COLUMN_IN = 3.5
+STYLES = [dict(color="black", linestyle="-", marker="o"), dict(color="0.45", linestyle="--", marker="s"),
+          dict(color="0.2", linestyle=":", marker="^"), dict(color="0.6", linestyle="-.", marker="D"),
+          dict(color="0.35", linestyle=(0, (5, 1, 1, 1)), marker="v")]
+plt.rcParams.update({"font.size": 8, "axes.titlesize": 8, "axes.labelsize": 8, "legend.fontsize": 7,
+                     "xtick.labelsize": 7, "ytick.labelsize": 7, "savefig.dpi": 200, "savefig.bbox": "tight"})
+
+
+def _pick(runs: pd.DataFrame, prefer_shape: str = "ncedf") -> pd.Series | None:
+    """A representative run: the preferred shape, full (not quick) runs first, a success first."""
+    if runs.empty:
+        return None
+    key = pd.DataFrame({"quick": runs["quick"].astype(bool), "shape": runs["shape"] != prefer_shape,
+                        "fail": runs["outcome"] != "success", "path": runs["path"]})
+    return runs.loc[key.sort_values(["quick", "shape", "fail", "path"]).index[0]]
+
+
+# ---------------------------------------------------------------- Fig. 3
+#: Link configurations of Fig. 3: (theta, phi) rad.
+FIG3_CONFIGS = ((0.8, 0.0), (2.0, math.pi / 3))
+FIG3_GRID = 161
+
+
+def fig3(model_path: str | None = None):
+    """N-CEDF slices through the bending plane of one link: learned, exact and their difference."""
+    import jax
+    import jax.numpy as jnp
+
+    from ncedf.data import BOX_MAX, BOX_MIN
+    from ncedf.geometry import link_signed_distance
+    from ncedf.model import load_model
+
+    model = load_model(model_path)
+    u = np.linspace(BOX_MIN[0], BOX_MAX[0], FIG3_GRID)
+    z = np.linspace(BOX_MIN[2], BOX_MAX[2], FIG3_GRID)
+    uu, zz = np.meshgrid(u, z)
+    fig, axes = plt.subplots(len(FIG3_CONFIGS), 3, figsize=(2 * COLUMN_IN, 1.75 * len(FIG3_CONFIGS)),
+                             constrained_layout=True)
+    rows = []
+    for i, (theta, phi) in enumerate(FIG3_CONFIGS):
+        d = np.array([math.cos(phi), math.sin(phi), 0.0])  # the bending direction in the link frame
+        pts = uu.reshape(-1, 1) * d + zz.reshape(-1, 1) * np.array([0.0, 0.0, 1.0])
+        p = jnp.asarray(pts, jnp.float32)
+        learned = np.asarray(jax.jit(model.link_distance)(p, theta, phi)).reshape(uu.shape)
+        exact = np.abs(np.asarray(link_signed_distance(p, theta, phi, model.spec))).reshape(uu.shape)
+        diff = learned - exact
+        vmax = float(max(learned.max(), exact.max()))
+        dmax = float(np.abs(diff).max())
+        for j, (field, title, cmap, lim) in enumerate((
+                (learned, "learned N-CEDF", "Greys", (0, vmax)), (exact, "exact distance", "Greys", (0, vmax)),
+                (diff, "learned - exact (- - < 0)", "PuOr", (-dmax, dmax)))):
+            ax = axes[i, j]
+            im = ax.pcolormesh(uu, zz, field, cmap=cmap, vmin=lim[0], vmax=lim[1], shading="auto", rasterized=True)
+            if j < 2:
+                cs = ax.contour(uu, zz, field, levels=[0.25, 0.5, 1.0, 1.5], colors="k", linewidths=0.5)
+                ax.clabel(cs, fontsize=6, fmt="%.2f")
+            else:  # dashed: under-estimation, solid: over-estimation (reads in greyscale)
+                ax.contour(uu, zz, diff, levels=[-0.05, -0.02, 0.02, 0.05], colors="k", linewidths=0.5)
+                ax.contour(uu, zz, exact, levels=[0.02], colors="0.4", linewidths=0.6)
+            ax.set_aspect("equal")
+            if i == 0:
+                ax.set_title(title)
+            if i == len(FIG3_CONFIGS) - 1:
+                ax.set_xlabel("u, along bending direction (m)")
+            ax.set_ylabel(f"θ = {theta:.2f}, φ = {phi:.2f} rad\nz (m)" if j == 0 else "z (m)")
+            fig.colorbar(im, ax=ax, shrink=0.55, aspect=12, label="distance (m)" if j < 2 else "error (m)")
+        rows.append(pd.DataFrame({"config": i, "theta": theta, "phi": phi, "u": uu.ravel(), "z": zz.ravel(),
+                                  "learned": learned.ravel(), "exact": exact.ravel(), "difference": diff.ravel()}))
+    return fig, pd.concat(rows, ignore_index=True)
+
+
+# ---------------------------------------------------------------- Fig. 4
+def fig4(rec: Recordings):
+    """Goal distance and robot-obstacle distances (predicted, exact) with the safety margin, one sphere run."""
+    run = _pick(rec.scenario("spheres"))
+    if run is None:
+        return "fig4: skipped, no dynamic-sphere recordings (python -m scenarios.reproduce table3 --out RUNS)"
+    s = rec.steps[rec.steps["run_id"] == run["run_id"]].sort_values("step")
+    margin = float(run["mppi.safety_margin"]) - float(run.get("world.margin_extra", 0.0) or 0.0)
+    fig, ax = plt.subplots(figsize=(COLUMN_IN, 2.4), constrained_layout=True)
+    ax.plot(s["sim_time"], s["goal_distance"], label="end effector to goal", **STYLES[0], markevery=10, ms=3)
+    ax.plot(s["sim_time"], s["predicted_min_distance"], label="robot to obstacles, predicted", **STYLES[1],
+            markevery=10, ms=3)
+    ax.plot(s["sim_time"], s["true_min_distance"], label="robot to obstacles, exact", **STYLES[2], markevery=10, ms=3)
+    ax.axhline(margin, color="0.3", linewidth=0.8, linestyle=(0, (1, 2)), label=f"safety margin {margin:.2f} m")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("distance (m)")
+    ax.set_title(f"{run['shape']}, {run['controller']}, environment {int(run['env_seed'])}: {run['outcome']}"
+                 + (" (quick)" if run["quick"] else ""))
+    ax.legend(loc="upper right", frameon=False)
+    ax.set_ylim(bottom=min(0.0, float(np.nanmin(s["true_min_distance"]))))
+    data = s[["step", "sim_time", "goal_distance", "predicted_min_distance", "true_min_distance"]].assign(
+        safety_margin=margin, run=run["path"])
+    return fig, data
+
+
+# ---------------------------------------------------------------- Figs. 5-7
+def _draw(ax, snap, title: str) -> None:
+    """The scene seen from -y (x-z plane): boxes and spheres grey, points light grey, robot black, plan dashed."""
+    for b in snap.boxes:
+        ax.add_patch(Rectangle((b[0] - b[3] / 2, b[2] - b[5] / 2), b[3], b[5], facecolor="0.85", edgecolor="0.5",
+                               linewidth=0.5))
+    for s in snap.spheres:
+        ax.add_patch(Circle((s[0], s[2]), s[3], facecolor="0.6", edgecolor="0.3", linewidth=0.5))
+    if len(snap.points):
+        ax.scatter(snap.points[:, 0], snap.points[:, 2], s=0.5, color="0.55", linewidths=0)
+    for i, line in enumerate(snap.backbone):
+        ax.plot(line[:, 0], line[:, 2], color="black" if i % 2 == 0 else "0.35", linewidth=2.2,
+                solid_capstyle="round")
+    if snap.plan is not None and len(snap.plan):
+        ax.plot(snap.plan[:, 0], snap.plan[:, 2], color="black", linestyle="--", linewidth=0.8, marker=".", ms=2)
+    if snap.goal is not None:
+        ax.plot(snap.goal[0], snap.goal[2], marker="*", color="white", markeredgecolor="black", ms=9)
+    ax.set_title(title)
+    ax.set_aspect("equal")
+    ax.set_xlim(-1.5, 7.0)
+    ax.set_ylim(-1.5, 9.0)
+    ax.set_xlabel("x (m)")
+
+
+def snapshot_strip(rec: Recordings, links: int):
+    """Figs. 5-7: the cluttered run with ``links`` links at the paper's steps and its reach step."""
+    runs = rec.scenario("cluttered")
+    runs = runs[runs["links"] == links] if not runs.empty else runs
+    run = _pick(runs)
+    if run is None:
+        return f"cluttered L{links}: skipped, no {links}-link cluttered recordings " \
+               f"(python -m scenarios.reproduce table4 --out RUNS)"
+    full = load_run(run["path"])
+    last = int(full.metrics["step"].max())
+    steps = sorted({min(k, last) for k in paper.SNAPSHOT_STEPS.get(links, ())} | {0, last})
+    times = dict(zip(full.metrics["step"], full.metrics["sim_time"]))
+    snaps = snapshots(run["path"], {k: times[k] for k in steps})
+    fig, axes = plt.subplots(1, len(steps), figsize=(1.2 * len(steps) + 0.4, 2.6), sharey=True,
+                             constrained_layout=True)
+    reach = run["reach_step"]
+    rows = []
+    for ax, k in zip(np.atleast_1d(axes), steps):
+        label = "reached" if (pd.notna(reach) and k == int(reach)) else ("end" if k == last else "")
+        _draw(ax, snaps[k], f"step {k}" + (f" ({label})" if label else ""))
+        sn = snaps[k]
+        for i, line in enumerate(sn.backbone):
+            rows.append(pd.DataFrame({"step": k, "kind": f"backbone_link{i + 1}", "x": line[:, 0], "y": line[:, 1],
+                                      "z": line[:, 2]}))
+        if sn.plan is not None:
+            rows.append(pd.DataFrame({"step": k, "kind": "plan", "x": sn.plan[:, 0], "y": sn.plan[:, 1],
+                                      "z": sn.plan[:, 2]}))
+        rows.append(pd.DataFrame({"step": k, "kind": "sphere_centre", "x": sn.spheres[:, 0], "y": sn.spheres[:, 1],
+                                  "z": sn.spheres[:, 2]}))
+    np.atleast_1d(axes)[0].set_ylabel("z (m)")
+    fig.suptitle(f"{links} links, {run['controller']} controller, seed {int(run['seed'])}: {run['outcome']}"
+                 + (" (quick)" if run["quick"] else "") + f"; paper's steps {paper.SNAPSHOT_STEPS.get(links)}",
+                 fontsize=8)
+    return fig, pd.concat(rows, ignore_index=True).assign(run=run["path"])
+
+
+# ---------------------------------------------------------------- timing and success
+def _episode_times(rec: Recordings) -> pd.DataFrame:
+    """Per episode: scenario, shape, controller, links, observed points, mean MPPI step time (s)."""
+    runs = rec.runs[rec.runs["scenario"].isin(["spheres", "cluttered"])] if "scenario" in rec.runs else rec.runs
+    if runs.empty:
+        return pd.DataFrame()
+    per = rec.steps.groupby("run_id")["solver_ms"].mean() / 1e3
+    out = runs[["run_id", "scenario", "shape", "controller", "links", "observed_points", "quick"]].copy()
+    out["mppi_step_s"] = out["run_id"].map(per)
+    return out.dropna(subset=["mppi_step_s"])
+
+
+def _timing_plot(rec: Recordings, axis: str, label: str):
+    times = _episode_times(rec)
+    if times.empty:
+        return f"MPPI time vs {axis}: skipped, no episode recordings (python -m scenarios.reproduce table3/table4)"
+    fig, ax = plt.subplots(figsize=(COLUMN_IN, 2.4), constrained_layout=True)
+    rows = []
+    for i, ((shape, controller, quick), g) in enumerate(times.groupby(["shape", "controller", "quick"])):
+        stats = [(x, *mean_std(gg["mppi_step_s"])) for x, gg in g.groupby(axis)]
+        x, m, sd, n = (np.array(v) for v in zip(*stats))
+        ax.errorbar(x, m, yerr=sd, capsize=2, ms=4, label=f"{shape}, {controller}" + (" (quick)" if quick else ""),
+                    **STYLES[i % len(STYLES)])
+        rows.append(pd.DataFrame({"shape": shape, "controller": controller, "quick": quick, axis: x,
+                                  "mppi_step_s_mean": m, "mppi_step_s_std": sd, "episodes": n}))
+    ax.set_xlabel(label)
+    ax.set_ylabel("MPPI step time (s)")
+    ax.set_yscale("log")
+    ax.legend(frameon=False, fontsize=6)
+    return fig, pd.concat(rows, ignore_index=True)
+
+
+def mppi_time_vs_links(rec: Recordings):
+    return _timing_plot(rec, "links", "robot links")
+
+
+def mppi_time_vs_points(rec: Recordings):
+    return _timing_plot(rec, "observed_points", "observed obstacle points")
+
+
+def success_rates(rec: Recordings):
+    """Success rate per representation and controller with Wilson 95% intervals (dynamic spheres)."""
+    runs = rec.scenario("spheres")
+    if runs.empty:
+        return "success rates: skipped, no dynamic-sphere recordings (python -m scenarios.reproduce table3 --out RUNS)"
+    groups = list(runs.groupby(["shape", "controller", "quick"]))
+    order = {s: i for i, s in enumerate(paper.TABLE3)}
+    groups.sort(key=lambda g: (order.get(g[0][0], 99), g[0][1]))
+    rows = []
+    for (shape, controller, quick), g in groups:
+        n, k = len(g), int((g["outcome"] == "success").sum())
+        low, high = wilson(k, n)
+        rows.append({"shape": shape, "controller": controller, "quick": quick, "episodes": n, "successes": k,
+                     "success": k / n, "low": low, "high": high, "paper_success": paper.TABLE3.get(shape, (np.nan,))[0]})
+    df = pd.DataFrame(rows)
+    fig, ax = plt.subplots(figsize=(COLUMN_IN, 2.4), constrained_layout=True)
+    y = np.arange(len(df))
+    ax.errorbar(df["success"], y, xerr=[df["success"] - df["low"], df["high"] - df["success"]], fmt="o",
+                color="black", capsize=2, ms=4, label="ours, Wilson 95% interval")
+    ax.plot(df["paper_success"], y, "x", color="0.45", ms=6, label="paper (1000 environments)")
+    ax.set_yticks(y, [f"{r.shape}, {r.controller} (n={r.episodes})" + (" quick" if r.quick else "")
+                      for r in df.itertuples()])
+    ax.set_xlabel("success rate")
+    ax.set_xlim(-0.02, 1.02)
+    ax.invert_yaxis()
+    ax.legend(frameon=False, loc="lower left", fontsize=6)
+    return fig, df
+
+
+def builders(rec: Recordings, model_path: str | None):
+    """(file stem, thunk) of every figure."""
+    return [
+        ("fig3_ncedf_slices", lambda: fig3(model_path)),
+        ("fig4_sphere_distances", lambda: fig4(rec)),
+        *[(f"fig{5 + i}_cluttered_L{links}", (lambda l=links: snapshot_strip(rec, l)))
+          for i, links in enumerate(sorted(paper.SNAPSHOT_STEPS))],
+        ("mppi_time_vs_links", lambda: mppi_time_vs_links(rec)),
+        ("mppi_time_vs_points", lambda: mppi_time_vs_points(rec)),
+        ("success_rates", lambda: success_rates(rec)),
+    ]
+
+
+__all__ = ["builders", "RecorderError"]
