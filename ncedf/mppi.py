@@ -1,9 +1,19 @@
 """MPPI controller for a multi-link continuum robot (paper Sec. V).
 
-Dynamics (paper eq. 3) on the arc lengths: ``x' = x + u dt``. Sampled control
-rates are projected so each link's three rates sum to zero (the backbone is
-inextensible) and then scaled per link so that no rate exceeds the bound
-(scaling keeps the zero sum; element-wise clipping would not).
+Dynamics (paper eq. 3) on the arc lengths: ``x' = x + u dt``. Two ways to
+sample control rates that keep each link's three rates summing to zero (the
+backbone is inextensible), ``MPPIConfig.sampling``:
+
+* ``"project"`` (default): three rates are sampled, projected to zero sum and
+  scaled per link so that no rate exceeds the bound (scaling keeps the zero
+  sum; element-wise clipping would not);
+* ``"release"`` (the authors' release): two free rates per link are sampled
+  and clipped to the bound, the third is minus their sum (so it reaches twice
+  the bound).
+
+Noise is white over the horizon, or with ``noise_smoothing`` beta > 0 a
+stationary first-order low-pass sequence ``e_k = beta e_{k-1} + sqrt(1 - beta^2) n_k``
+(same per-step variance).
 
 Costs (paper Sec. V-B), over the rollout states ``x^1 .. x^H`` of each sample
 ``j`` (the paper sums ``k = 0 .. H-1``; the ``k = 0`` term is the current state,
@@ -22,6 +32,20 @@ terminal weights, 0 by default):
 Update: ``C~ = (C - min C) / (max C - min C)``, ``w = exp(-C~ / lambda)``,
 ``U <- (1 - alpha_u) U + alpha_u sum_j w_j u^j / sum_j w_j``; the first control is
 executed, the plan is shifted by one step (the last control repeated, or zero).
+With ``target_ess`` set, lambda is not fixed: it is the smallest of a
+logarithmic grid (``TEMPERATURE_GRID``) whose weights have an effective sample
+size ``1 / sum w^2`` of at least ``target_ess * N`` (so the update averages
+many samples instead of collapsing to one).
+
+Safety check (``safety_check``): before it is executed, the action is checked
+against the current cloud with the representation at ``check_substeps`` states
+evenly spaced over the step (``x + s/S u dt``, s = 1..S, so a thin wall crossed
+within one step is seen). Candidates, in order of preference: the MPPI action,
+the lowest-cost sample's first control, the first control of the sample
+farthest from the cloud after one step, the MPPI action scaled by
+``CHECK_SCALES``, and no motion. The first candidate whose predicted clearance
+over the step is at least ``safety_margin + check_margin`` is executed; if none
+is, the one with the largest clearance.
 
 The step is a pure function, :func:`mppi_step` (jitted with the robot and the
 settings static, so every controller built with them shares its compiled
@@ -45,6 +69,13 @@ import numpy as np
 from ncedf.broad_phase import rollout_min_distances_broad, rollout_min_distances_brute
 from ncedf.robot import RobotSpec, forward_kinematics, validate_state
 from ncedf.shapes import Shape
+
+#: Ways to sample zero-sum control rates (``MPPIConfig.sampling``).
+SAMPLING = ("project", "release")
+#: Candidate temperatures when ``MPPIConfig.target_ess`` is set (on costs normalised to [0, 1]).
+TEMPERATURE_GRID = tuple(float(x) for x in np.logspace(-4, 1, 64))
+#: Scales of the MPPI action among the safety check's candidates (before "no motion").
+CHECK_SCALES = (0.5, 0.25)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -72,6 +103,16 @@ class MPPIConfig:
       shift_fill: "last" (repeat the last control) or "zero" after the shift.
       limit_action: scale the executed action so the next state stays within
         the arc-length limits (rollouts keep the soft state cost).
+      sampling: "project" (three rates projected to zero sum, scaled to the
+        bound) or "release" (two free rates clipped to the bound, the third
+        minus their sum); see the module docstring.
+      noise_smoothing: beta in [0, 1) of the low-pass noise over the horizon
+        (0 = white noise).
+      target_ess: None = fixed ``temperature``; else in (0, 1]: lambda is
+        chosen per step for an effective sample size >= target_ess * samples.
+      safety_check: check the executed action against the cloud (module docstring).
+      check_substeps: states checked over the step.  check_margin: clearance
+        above ``safety_margin`` the check demands, m.
     """
 
     samples: int = 800
@@ -97,6 +138,12 @@ class MPPIConfig:
     capsule_segments: int = 2
     shift_fill: str = "last"
     limit_action: bool = True
+    sampling: str = "project"
+    noise_smoothing: float = 0.0
+    target_ess: float | None = None
+    safety_check: bool = False
+    check_substeps: int = 4
+    check_margin: float = 0.0
 
     def __post_init__(self):
         def num(name):
@@ -107,7 +154,7 @@ class MPPIConfig:
                 raise ValueError(f"MPPIConfig.{name} must be finite, got {value!r}")
             return value
 
-        for name in ("samples", "horizon", "max_points", "k1", "k2", "capsule_segments"):
+        for name in ("samples", "horizon", "max_points", "k1", "k2", "capsule_segments", "check_substeps"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
                 raise ValueError(f"MPPIConfig.{name} must be an integer, got {value!r}")
@@ -116,14 +163,21 @@ class MPPIConfig:
         for name in ("covariance", "temperature", "control_bound", "dt", "epsilon"):
             if num(name) <= 0:
                 raise ValueError(f"MPPIConfig.{name} must be > 0, got {getattr(self, name)}")
-        for name in ("w_goal", "w_coll", "w_state", "w_goal_terminal", "w_coll_terminal", "w_perturbation", "safety_margin"):
+        for name in ("w_goal", "w_coll", "w_state", "w_goal_terminal", "w_coll_terminal", "w_perturbation", "safety_margin",
+                     "check_margin"):
             if num(name) < 0:
                 raise ValueError(f"MPPIConfig.{name} must be >= 0, got {getattr(self, name)}")
         if not 0 < num("alpha_u") <= 1:
             raise ValueError(f"MPPIConfig.alpha_u must be in (0, 1], got {self.alpha_u}")
         if self.noise_clip is not None and num("noise_clip") <= 0:
             raise ValueError(f"MPPIConfig.noise_clip must be > 0 or None, got {self.noise_clip}")
-        for name in ("broad_phase", "limit_action"):
+        if not 0 <= num("noise_smoothing") < 1:
+            raise ValueError(f"MPPIConfig.noise_smoothing must be in [0, 1), got {self.noise_smoothing}")
+        if self.target_ess is not None and not 0 < num("target_ess") <= 1:
+            raise ValueError(f"MPPIConfig.target_ess must be in (0, 1] or None, got {self.target_ess}")
+        if self.sampling not in SAMPLING:
+            raise ValueError(f"MPPIConfig.sampling must be one of {', '.join(SAMPLING)}, got {self.sampling!r}")
+        for name in ("broad_phase", "limit_action", "safety_check"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"MPPIConfig.{name} must be a bool, got {getattr(self, name)!r}")
         if self.shift_fill not in ("last", "zero"):
@@ -151,6 +205,11 @@ class MPPIInfo(NamedTuple):
     ess: effective sample size of the weights, ``1 / sum w^2`` (w normalised).
     selected: index of the selected rollout.
     rollout_min_distance: (N, H) predicted min distance of every rollout state.
+    temperature: the lambda used (``temperature`` or the one chosen for ``target_ess``).
+    action_clearance: predicted clearance over the executed step (the safety
+      check's; NaN without it), m.
+    action_choice: the executed safety-check candidate (0 = the MPPI action;
+      see the module docstring; 0 without the check).
     """
 
     plan: jnp.ndarray
@@ -165,6 +224,9 @@ class MPPIInfo(NamedTuple):
     ess: jnp.ndarray
     selected: jnp.ndarray
     rollout_min_distance: jnp.ndarray
+    temperature: jnp.ndarray
+    action_clearance: jnp.ndarray
+    action_choice: jnp.ndarray
 
 
 def project_controls(u: jnp.ndarray, bound: float) -> jnp.ndarray:
@@ -176,6 +238,78 @@ def project_controls(u: jnp.ndarray, bound: float) -> jnp.ndarray:
     u = u - jnp.mean(u, axis=-1, keepdims=True)
     peak = jnp.max(jnp.abs(u), axis=-1, keepdims=True)
     return u * jnp.minimum(1.0, bound / jnp.maximum(peak, 1e-30))
+
+
+def release_controls(free: jnp.ndarray, bound: float) -> jnp.ndarray:
+    """The release's zero-sum rates: two free rates clipped to ``+-bound``, the third minus their sum.
+
+    Args:
+      free: (..., 2) rates per link, m/s.
+    Returns:
+      (..., 3) rates, m/s (the third within ``+-2 bound``).
+    """
+    free = jnp.clip(free, -bound, bound)
+    return jnp.concatenate([free, -jnp.sum(free, axis=-1, keepdims=True)], axis=-1)
+
+
+def smoothing_matrix(horizon: int, beta: float) -> np.ndarray:
+    """(H, H) lower-triangular L with ``e = L n`` the stationary low-pass sequence
+    ``e_0 = n_0``, ``e_k = beta e_{k-1} + sqrt(1 - beta^2) n_k`` (unit variance per step for white n)."""
+    k = np.arange(horizon)
+    lag = k[:, None] - k[None, :]
+    gain = np.where(k[None, :] == 0, 1.0, math.sqrt(1.0 - beta * beta))
+    return np.where(lag >= 0, beta ** np.maximum(lag, 0) * gain, 0.0).astype(np.float32)
+
+
+def sample_noise(config: MPPIConfig, key, dims: tuple[int, ...], dtype) -> jnp.ndarray:
+    """Perturbations (N, H, M, 3) m/s: Gaussian with variance ``covariance``, low-pass over the
+    horizon if ``noise_smoothing`` > 0, clipped to ``noise_clip``; with release sampling the third
+    rate of each link carries no noise (it is derived)."""
+    eps = math.sqrt(config.covariance) * jax.random.normal(key, (config.samples,) + dims, dtype)
+    if config.noise_smoothing > 0:
+        eps = jnp.einsum("ts,nsmc->ntmc", smoothing_matrix(dims[0], config.noise_smoothing), eps)
+    if config.noise_clip is not None:
+        eps = jnp.clip(eps, -config.noise_clip, config.noise_clip)
+    if config.sampling == "release":
+        eps = eps.at[..., 2].set(0.0)
+    return eps
+
+
+def sample_controls(config: MPPIConfig, nominal: jnp.ndarray, eps: jnp.ndarray) -> jnp.ndarray:
+    """Sampled zero-sum rates (N, H, M, 3) from the nominal (H, M, 3) and noise (``config.sampling``)."""
+    if config.sampling == "release":
+        return release_controls(nominal[None, ..., :2] + eps[..., :2], config.control_bound)
+    return project_controls(nominal[None] + eps, config.control_bound)
+
+
+def temperature_for_ess(norm: jnp.ndarray, target: float) -> jnp.ndarray:
+    """The smallest lambda of ``TEMPERATURE_GRID`` whose weights ``exp(-norm / lambda)`` have an
+    effective sample size >= ``target * N`` (the largest if none has).
+
+    Args:
+      norm: (N,) costs normalised to [0, 1].
+    """
+    grid = jnp.asarray(TEMPERATURE_GRID, norm.dtype)
+    w = jnp.exp(-norm[None] / grid[:, None])  # (G, N); the minimum keeps weight 1
+    ess = jnp.sum(w, axis=1) ** 2 / jnp.sum(w * w, axis=1)
+    ok = ess >= target * norm.shape[0]
+    return jnp.where(jnp.any(ok), grid[jnp.argmax(ok)], grid[-1])
+
+
+def step_clearance(shape, arc: jnp.ndarray, actions: jnp.ndarray, points, mask, dt: float,
+                   substeps: int) -> jnp.ndarray:
+    """Predicted clearance over one step for each action: min over the states
+    ``arc + (s / S) u dt``, s = 1..S, of the representation's min distance to the cloud.
+
+    Args:
+      arc: (M, 3) m.  actions: (C, M, 3) m/s.  points: (P, 3) m; mask: (P,) bool.
+    Returns:
+      (C,) m (+inf for an empty cloud).
+    """
+    frac = jnp.arange(1, substeps + 1, dtype=arc.dtype) / substeps
+    states = arc + dt * frac[None, :, None, None] * actions[:, None]  # (C, S, M, 3)
+    dist = jax.vmap(jax.vmap(lambda a: shape.min_distance(points, a, mask)))(states)
+    return jnp.min(dist, axis=1)
 
 
 def limit_to_state_bounds(arc: jnp.ndarray, u: jnp.ndarray, dt: float, spec: RobotSpec) -> jnp.ndarray:
@@ -230,11 +364,8 @@ def mppi_step(spec: RobotSpec, config: MPPIConfig, shape, state: MPPIState, arc,
     c = config
     key, k_noise = jax.random.split(state.key)
     nominal = state.nominal
-    sigma = math.sqrt(c.covariance)
-    eps = sigma * jax.random.normal(k_noise, (c.samples,) + nominal.shape, nominal.dtype)
-    if c.noise_clip is not None:
-        eps = jnp.clip(eps, -c.noise_clip, c.noise_clip)
-    u = project_controls(nominal[None] + eps, c.control_bound)  # (N, H, M, 3)
+    eps = sample_noise(c, k_noise, nominal.shape, nominal.dtype)
+    u = sample_controls(c, nominal, eps)  # (N, H, M, 3)
     arcs = arc[None, None] + c.dt * jnp.cumsum(u, axis=1)  # x^1 .. x^H
 
     # Per-state terms.
@@ -255,20 +386,33 @@ def mppi_step(spec: RobotSpec, config: MPPIConfig, shape, state: MPPIState, arc,
     lo, hi = jnp.min(total), jnp.max(total)
     spread = hi - lo
     norm = jnp.where(spread > 0, (total - lo) / jnp.where(spread > 0, spread, 1.0), 0.0)
-    w = jnp.exp(-norm / c.temperature)
+    temperature = (jnp.asarray(c.temperature, norm.dtype) if c.target_ess is None
+                   else temperature_for_ess(norm, c.target_ess))
+    w = jnp.exp(-norm / temperature)
     w = w / jnp.sum(w)
     ess = 1.0 / jnp.sum(w * w)
     updated = (1.0 - c.alpha_u) * nominal + c.alpha_u * jnp.einsum("n,nhmc->hmc", w, u)
 
+    best = jnp.argmin(total)
     action = updated[0]
-    if c.limit_action:
+    clearance, choice = jnp.asarray(jnp.nan, arc.dtype), jnp.asarray(0)
+    if c.safety_check:
+        safest = jnp.argmax(dist[:, 0])
+        candidates = jnp.stack([action, u[best, 0], u[safest, 0]]
+                               + [s * action for s in CHECK_SCALES] + [jnp.zeros_like(action)])
+        if c.limit_action:
+            candidates = jax.vmap(lambda a: limit_to_state_bounds(arc, a, c.dt, spec))(candidates)
+        clear = step_clearance(shape, arc, candidates, points, mask, c.dt, c.check_substeps)
+        ok = clear >= c.safety_margin + c.check_margin
+        choice = jnp.where(jnp.any(ok), jnp.argmax(ok), jnp.argmax(clear))
+        action, clearance = candidates[choice], clear[choice]
+    elif c.limit_action:
         action = limit_to_state_bounds(arc, action, c.dt, spec)
     fill = updated[-1:] if c.shift_fill == "last" else jnp.zeros_like(updated[-1:])
     next_nominal = jnp.concatenate([updated[1:], fill], axis=0)
 
     plan_arcs = jnp.concatenate([arc[None], arc[None] + c.dt * jnp.cumsum(updated, axis=0)], axis=0)
     plan = forward_kinematics(plan_arcs, spec)[:, -1, :3, 3]
-    best = jnp.argmin(total)
     info = MPPIInfo(
         plan=plan,
         predicted_min_distance=jnp.min(dist[best]),
@@ -282,6 +426,9 @@ def mppi_step(spec: RobotSpec, config: MPPIConfig, shape, state: MPPIState, arc,
         ess=ess,
         selected=best,
         rollout_min_distance=dist,
+        temperature=temperature,
+        action_clearance=clearance,
+        action_choice=choice,
     )
     return action, MPPIState(next_nominal, key), info
 

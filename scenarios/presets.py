@@ -88,6 +88,20 @@ PRESETS: dict[str, Preset] = {
             ),
             _release_sizes,
         ),
+        Preset(
+            "ours",
+            "release + release sampling + safety check of the executed action",
+            (
+                ("covariance", 0.1),
+                ("noise_clip", 0.5),
+                ("w_goal_terminal", 22.0),
+                ("w_coll_terminal", 1.1),
+                ("w_perturbation", 0.1),
+                ("sampling", "release"),
+                ("safety_check", True),
+            ),
+            _release_sizes,
+        ),
     )
 }
 CONTROLLERS = tuple(PRESETS)

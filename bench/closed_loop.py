@@ -1,0 +1,201 @@
+"""Closed-loop ablation of the controller, judged exactly: ``python bench/closed_loop.py``.
+
+    python bench/closed_loop.py --quick
+    python bench/closed_loop.py --links 4,5,7 --seeds 5 --envs 20 --variants release,ours,paper
+    python bench/closed_loop.py --variants ours,ours-no-check --scenarios cluttered --seeds 20
+
+A variant is the ``release`` or ``ours`` preset of ``scenarios.presets`` with
+some MPPIConfig fields changed (``VARIANTS``): ``ours`` with one of its changes
+turned off, ``release`` with one turned on, and ``paper`` at ``ours``'s rollouts
+and horizon (the reference of the solver time). Every variant runs the same
+episodes (``scenarios.episode``, no recording): the cluttered scene for each of
+``--links`` x ``--seeds`` controller seeds, and the dynamic spheres for
+``--envs`` environments x ``--goals`` (controller seed 0), 4 links. Printed per
+variant and group (cluttered L4 / L5 / L7, spheres): episodes, success /
+collision / stuck counts with 95% Wilson intervals of their rates, the median
+reach step of the successes, and the solver time per MPPI step (mean +- std
+over the steps of all its episodes), then per group the ratio of each
+variant's mean solver time to ``paper``'s (same run, same rollouts and horizon).
+
+One process, episodes in sequence (a configuration compiles once). ``--json``
+also writes every episode's result. Ctrl-C prints the table of the episodes
+finished so far and exits 130.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import signal
+import sys
+import time
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from ncedf.mppi import MPPI
+from scenarios.episode import Episode, EpisodeSettings
+from scenarios.presets import PRESETS
+
+#: name -> (preset, MPPIConfig fields changed). ``paper`` also takes ``ours``'s sizes (see ``sizes_of``).
+VARIANTS: dict[str, tuple[str, dict]] = {
+    "release": ("release", {}),
+    "release+sampling": ("release", {"sampling": "release"}),
+    "ours": ("ours", {}),
+    "ours-sampling": ("ours", {"sampling": "project"}),
+    "ours-check": ("ours", {"safety_check": False}),
+    "ours-ess": ("ours", {"target_ess": None}),
+    "ours-smooth": ("ours", {"noise_smoothing": 0.0}),
+    "ours-margin": ("ours", {"safety_margin": 0.05}),
+    "paper": ("paper", {}),
+}
+#: z for a 95% interval.
+Z95 = 1.959963984540054
+QUICK = {"links": "4,5,7", "seeds": 1, "envs": 2, "variants": "ours,paper", "max_steps": 60}
+
+
+def wilson(k: int, n: int, z: float = Z95) -> tuple[float, float]:
+    """Wilson score interval of a rate k / n (n > 0)."""
+    p = k / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    return max(0.0, centre - half), min(1.0, centre + half)
+
+
+def episodes(args) -> list[tuple[str, EpisodeSettings]]:
+    """(group, settings) of every episode a variant runs (controller filled in per variant)."""
+    out = []
+    if "cluttered" in args.scenarios:
+        for links in args.links:
+            for seed in range(args.seed0, args.seed0 + args.seeds):
+                out.append((f"cluttered L{links}", EpisodeSettings("cluttered", links, seed,
+                                                                   max_steps=args.max_steps)))
+    if "spheres" in args.scenarios:
+        for goal in args.goals:
+            for env in range(args.env0, args.env0 + args.envs):
+                out.append((f"spheres {goal}", EpisodeSettings("spheres", 4, 0, env_seed=env, goal=goal,
+                                                               max_steps=args.max_steps)))
+    return out
+
+
+def run_one(variant: str, settings: EpisodeSettings):
+    """One episode of ``variant`` (no recording): its EpisodeResult."""
+    preset, fields = VARIANTS[variant]
+    if preset == "paper":  # at ours's rollouts and horizon
+        samples, horizon = PRESETS["ours"].sizes(settings.scenario, settings.links)
+        settings = dataclasses.replace(settings, samples=samples, horizon=horizon)
+    episode = Episode(dataclasses.replace(settings, controller=preset))
+    if fields:
+        config = dataclasses.replace(episode.scene.config, **fields)
+        if "safety_margin" in fields:  # keep the scene's extra (sphere radius)
+            extra = episode.scene.world.margin_extra
+            config = dataclasses.replace(config, safety_margin=fields["safety_margin"] + extra)
+        episode.scene = dataclasses.replace(episode.scene, config=config)
+        episode.mppi = MPPI(episode.scene.spec, episode.shape, config)
+    return episode.run(out=None)
+
+
+def summarise(rows: list[dict]) -> str:
+    """The table of results (see the module docstring)."""
+    groups = defaultdict(list)
+    for row in rows:
+        groups[(row["group"], row["variant"])].append(row)
+    paper_ms = {g: np.mean([r["ms_mean"] for r in rs]) for (g, v), rs in groups.items() if v == "paper"}
+    lines = [f"{'group':<16}{'variant':<18}{'n':>4}  {'success [95% CI]':<22}{'collision [95% CI]':<22}"
+             f"{'stuck':>6}{'reach med':>10}{'solver ms':>18}{'/paper':>8}"]
+    for (group, variant), rs in sorted(groups.items()):
+        n = len(rs)
+        counts = {o: sum(r["outcome"] == o for r in rs) for o in ("success", "collision", "stuck")}
+        cell = {o: "{:>2} ({:.2f}-{:.2f})".format(counts[o], *wilson(counts[o], n)) for o in counts}
+        reach = [r["reach_step"] for r in rs if r["reach_step"] is not None]
+        med = f"{np.median(reach):.0f}" if reach else "-"
+        means = np.array([r["ms_mean"] for r in rs])
+        weights = np.array([r["steps"] for r in rs], float)
+        mean = float(np.average(means, weights=weights))
+        var = float(np.average(np.array([r["ms_std"] for r in rs]) ** 2 + (means - mean) ** 2, weights=weights))
+        ratio = f"{np.mean(means) / paper_ms[group]:.2f}" if group in paper_ms else "-"
+        lines.append(f"{group:<16}{variant:<18}{n:>4}  {cell['success']:<22}{cell['collision']:<22}"
+                     f"{counts['stuck']:>6}{med:>10}{mean:>10.1f} +- {math.sqrt(var):<5.1f}{ratio:>8}")
+    return "\n".join(lines)
+
+
+def parse_list(text: str, cast, name: str, allowed=None):
+    try:
+        values = [cast(v) for v in text.split(",") if v]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"bad {name} list {text!r}") from None
+    if not values:
+        raise argparse.ArgumentTypeError(f"empty {name} list")
+    bad = [v for v in values if allowed is not None and v not in allowed]
+    if bad:
+        raise argparse.ArgumentTypeError(f"unknown {name} {bad[0]!r}; choose from {', '.join(map(str, allowed))}")
+    return values
+
+
+def positive(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
+    return value
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], epilog=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--variants", default="release,ours,paper",
+                   type=lambda t: parse_list(t, str, "variant", VARIANTS),
+                   help=f"comma-separated, from: {', '.join(VARIANTS)} (default release,ours,paper)")
+    p.add_argument("--scenarios", default="cluttered,spheres",
+                   type=lambda t: parse_list(t, str, "scenario", ("cluttered", "spheres")))
+    p.add_argument("--links", default="4,5,7", type=lambda t: parse_list(t, int, "links"),
+                   help="cluttered link counts (default 4,5,7)")
+    p.add_argument("--seeds", type=positive, default=3, help="cluttered controller seeds per link count (default 3)")
+    p.add_argument("--seed0", type=int, default=0, help="first controller seed (default 0)")
+    p.add_argument("--envs", type=positive, default=10, help="spheres environments per goal kind (default 10)")
+    p.add_argument("--env0", type=int, default=0, help="first spheres environment (default 0)")
+    p.add_argument("--goals", default="fixed", type=lambda t: parse_list(t, str, "goal", ("fixed", "random")),
+                   help="spheres goal kinds (default fixed)")
+    p.add_argument("--max-steps", type=positive, help="override every scenario's step budget")
+    p.add_argument("--quick", action="store_true",
+                   help="smoke run: 1 seed, 2 environments, ours and paper, 60 steps")
+    p.add_argument("--json", type=Path, help="also write every episode's result here")
+    args = p.parse_args(argv)
+    if args.quick:
+        args.links, args.seeds, args.envs = [4, 5, 7], QUICK["seeds"], QUICK["envs"]
+        args.variants, args.max_steps = QUICK["variants"].split(","), QUICK["max_steps"]
+    if "paper" not in args.variants:
+        print("note: without the paper variant there is no solver-time ratio", file=sys.stderr)
+
+    signal.signal(signal.SIGTERM, signal.default_int_handler)
+    rows = []
+    todo = [(v, g, s) for v in args.variants for g, s in episodes(args)]
+    start = time.perf_counter()
+    try:
+        for variant, group, settings in tqdm(todo, desc="episodes", file=sys.stderr, dynamic_ncols=True):
+            r = run_one(variant, settings)
+            rows.append({"variant": variant, "group": group, "links": settings.links, "seed": settings.seed,
+                         "env_seed": settings.env_seed, "outcome": r.outcome, "reach_step": r.reach_step,
+                         "steps": r.steps, "min_true_distance": r.min_true_distance,
+                         "final_goal_distance": r.final_goal_distance, "ms_mean": r.solver_ms_mean,
+                         "ms_std": r.solver_ms_std})
+    except KeyboardInterrupt:
+        print(f"interrupted: {len(rows)} of {len(todo)} episodes finished; their table follows", file=sys.stderr)
+        if rows:
+            print(summarise(rows))
+        return 130
+    print(summarise(rows))
+    print(f"{len(rows)} episodes in {time.perf_counter() - start:.0f} s")
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,145 @@
+"""The controller's safety and sampling options: the executed action's check, release sampling,
+temperature for a target effective sample size, low-pass noise; presets paper / release unchanged."""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from ncedf.geometry import robot_signed_distance
+from ncedf.mppi import (TEMPERATURE_GRID, MPPIConfig, MPPIState, mppi_step, release_controls, smoothing_matrix,
+                        step_clearance, temperature_for_ess)
+from ncedf.robot import RobotSpec
+from ncedf.shapes import make_shape
+from scenarios.presets import mppi_config
+
+# One link bent at the largest rate for a long step (dt = 1 s): the tip sweeps from (0, 0, 2)
+# to about (-1.24, 0, 1.33), through a thin wall of points at x = -0.6 (z in [1.7, 2.4]) that
+# the end state has left behind (exact clearance about 0.32 m before and after the step).
+SPEC = RobotSpec(1)
+ARC = np.full((1, 3), 2.0, np.float32)
+CROSSING = np.array([[0.3, -0.15, -0.15]], np.float32)
+GOAL = np.array([-1.24, 0.0, 1.33], np.float32)
+WALL_CONFIG = MPPIConfig(samples=16, horizon=3, covariance=1e-10, dt=1.0, max_points=512, broad_phase=False)
+
+
+def _wall() -> np.ndarray:
+    ys, zs = np.meshgrid(np.linspace(-0.5, 0.5, 21), np.linspace(1.7, 2.4, 15))
+    return np.stack([np.full(ys.size, -0.6), ys.ravel(), zs.ravel()], axis=1).astype(np.float32)
+
+
+@jax.jit
+def _exact_over_step(points, arc, action):
+    """Exact clearance at 101 states evenly spaced over a step of dt = 1 s (the truth)."""
+    s = jnp.linspace(0.0, 1.0, 101)[:, None, None]
+    return jax.vmap(lambda a: jnp.min(robot_signed_distance(points, a, SPEC)))(arc + s * action)
+
+
+def _run(config, points):
+    shape = make_shape("exact", SPEC)
+    mask = np.ones(len(points), bool)
+    nominal = jnp.broadcast_to(jnp.asarray(CROSSING), (config.horizon, 1, 3))
+    state = MPPIState(nominal, jax.random.PRNGKey(0))
+    return mppi_step(SPEC, config, shape, state, jnp.asarray(ARC), jnp.asarray(GOAL), jnp.asarray(points),
+                     jnp.asarray(mask))
+
+
+def test_the_wall_is_crossed_within_the_step_and_not_seen_at_its_ends():
+    exact = np.asarray(_exact_over_step(jnp.asarray(_wall()), jnp.asarray(ARC), jnp.asarray(CROSSING)))
+    assert exact[0] > 0.3 and exact[-1] > 0.3
+    assert exact.min() < -0.1
+
+
+def test_safety_check_refuses_an_action_that_crosses_a_thin_wall():
+    wall = _wall()
+    unchecked, _, info = _run(WALL_CONFIG, wall)
+    # Without the check the controller executes the crossing (its rollouts only see the end state).
+    np.testing.assert_allclose(unchecked, CROSSING, atol=1e-4)
+    assert float(info.predicted_min_distance) > WALL_CONFIG.safety_margin
+    assert float(jnp.min(_exact_over_step(jnp.asarray(wall), jnp.asarray(ARC), unchecked))) < 0
+
+    checked_config = dataclasses.replace(WALL_CONFIG, safety_check=True)
+    action, _, info = _run(checked_config, wall)
+    assert int(info.action_choice) != 0
+    assert float(info.action_clearance) >= checked_config.safety_margin
+    assert float(jnp.min(_exact_over_step(jnp.asarray(wall), jnp.asarray(ARC), action))) >= 0.0
+
+
+def test_safety_check_keeps_a_safe_action():
+    far = _wall() + np.array([-5.0, 0.0, 0.0], np.float32)  # the same wall out of reach
+    unchecked, _, _ = _run(WALL_CONFIG, far)
+    action, _, info = _run(dataclasses.replace(WALL_CONFIG, safety_check=True), far)
+    np.testing.assert_array_equal(action, unchecked)
+    assert int(info.action_choice) == 0
+
+
+def test_step_clearance_is_the_min_over_the_substeps():
+    shape = make_shape("exact", SPEC)
+    wall = jnp.asarray(_wall())
+    actions = jnp.stack([jnp.asarray(CROSSING), 0.25 * jnp.asarray(CROSSING), jnp.zeros_like(CROSSING)])
+    got = step_clearance(shape, jnp.asarray(ARC), actions, wall, jnp.ones(len(wall), bool), 1.0, 4)
+    for action, value in zip(actions, np.asarray(got)):
+        truth = min(float(jnp.min(robot_signed_distance(wall, jnp.asarray(ARC) + s * action, SPEC)))
+                    for s in (0.25, 0.5, 0.75, 1.0))
+        assert value == pytest.approx(truth, abs=1e-5)
+
+
+def test_release_controls_zero_sum_and_bounds():
+    free = 0.4 * jax.random.normal(jax.random.PRNGKey(0), (1000, 3, 2))
+    u = np.asarray(release_controls(free, 0.3))
+    np.testing.assert_allclose(u.sum(-1), 0.0, atol=1e-6)
+    assert np.abs(u[..., :2]).max() <= 0.3 and np.abs(u[..., 2]).max() <= 0.6 + 1e-6
+    assert np.abs(u[..., 2]).max() > 0.3  # the derived rate goes past the bound
+    inside = np.all(np.abs(np.asarray(free)) <= 0.3, axis=-1)
+    np.testing.assert_array_equal(u[inside][:, :2], np.asarray(free)[inside])
+
+
+def test_release_sampling_keeps_zero_sum_in_the_rollouts():
+    config = dataclasses.replace(WALL_CONFIG, covariance=0.1, noise_clip=0.5, sampling="release")
+    action, state, _ = _run(config, _wall() + np.array([-5.0, 0.0, 0.0], np.float32))
+    np.testing.assert_allclose(np.asarray(state.nominal).sum(-1), 0.0, atol=1e-6)
+    np.testing.assert_allclose(np.asarray(action).sum(-1), 0.0, atol=1e-6)
+
+
+@pytest.mark.parametrize("beta", [0.0, 0.5, 0.9])
+def test_smoothing_matrix_gives_the_stationary_low_pass_covariance(beta):
+    L = smoothing_matrix(8, beta).astype(np.float64)
+    lag = np.abs(np.arange(8)[:, None] - np.arange(8)[None, :])
+    np.testing.assert_allclose(L @ L.T, beta ** lag, atol=1e-6)  # AR(1): unit variance, correlation beta^lag
+
+
+@pytest.mark.parametrize("target", [0.01, 0.1, 0.5])
+def test_temperature_for_ess_is_the_smallest_grid_value_that_reaches_the_target(target):
+    norm = jax.random.uniform(jax.random.PRNGKey(1), (800,)).at[3].set(0.0).at[7].set(1.0)
+    lam = float(temperature_for_ess(norm, target))
+
+    def ess(value):
+        w = np.exp(-np.asarray(norm, np.float64) / value)
+        return w.sum() ** 2 / (w * w).sum()
+
+    grid = np.asarray(TEMPERATURE_GRID, np.float32)
+    i = int(np.argmin(np.abs(grid - lam)))
+    assert ess(grid[i]) >= target * 800 * (1 - 1e-4)
+    assert i == 0 or ess(grid[i - 1]) < target * 800
+
+
+def test_new_options_are_validated():
+    for field, value in [("sampling", "free"), ("noise_smoothing", 1.0), ("target_ess", 0.0), ("target_ess", 2.0),
+                         ("safety_check", 1), ("check_substeps", 0), ("check_margin", -0.1)]:
+        with pytest.raises(ValueError, match=field):
+            MPPIConfig(**{field: value})
+
+
+def test_paper_and_release_presets_are_unchanged():
+    old_release = MPPIConfig(samples=800, horizon=20, covariance=0.1, noise_clip=0.5, w_goal_terminal=22.0,
+                             w_coll_terminal=1.1, w_perturbation=0.1, max_points=512)
+    assert mppi_config("release", "cluttered", 5, n_points=500) == old_release
+    assert mppi_config("release", "cluttered", 7, n_points=500) == dataclasses.replace(old_release, horizon=7)
+    assert mppi_config("release", "spheres", 4, n_points=8, margin_extra=0.7) == dataclasses.replace(
+        old_release, samples=1000, horizon=12, max_points=256, safety_margin=0.05 + 0.7)
+    assert mppi_config("paper", "cluttered", 7, n_points=500) == MPPIConfig(max_points=512)
+    for config in (old_release, MPPIConfig()):
+        assert (config.sampling, config.noise_smoothing, config.target_ess, config.safety_check) == (
+            "project", 0.0, None, False)
