@@ -41,15 +41,15 @@ _LEVELS = {"debug": "DEBUG", "info": "INFO", "warning": "WARN", "warn": "WARN", 
            "critical": "CRITICAL"}
 
 
-def _blueprint(extra_metrics: bool) -> rrb.Blueprint:
+def _blueprint() -> rrb.Blueprint:
     distances = [f"{schema.METRICS}/{name}" for name in schema.DISTANCE_METRICS] + [schema.SAFETY_MARGIN,
                                                                                     schema.GOAL_TOLERANCE]
+    others = [f"+ {schema.METRICS}/**"] + [f"- {schema.METRICS}/{name}" for name in schema.STANDARD_METRICS]
     plots = [
         rrb.TimeSeriesView(name="distances [m]", origin="/", contents=distances),
         rrb.TimeSeriesView(name="solver [ms]", origin="/", contents=[f"{schema.METRICS}/solver_ms"]),
+        rrb.TimeSeriesView(name="other metrics", origin="/", contents=others),
     ]
-    if extra_metrics:
-        plots.append(rrb.TimeSeriesView(name="metrics", origin=schema.METRICS))
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Spatial3DView(name="world", origin="/world", background=getattr(rrb.BackgroundKind, style.BACKGROUND)),
@@ -118,7 +118,7 @@ class RerunSink:
     def __init__(self, path: Path | None, *, app_id: str, recording_id: str, run_name: str,
                  safety_margin: float | None, goal_tolerance: float | None = None,
                  live: viewer.ViewerTarget | None = None):
-        blueprint = _blueprint(extra_metrics=True)
+        blueprint = _blueprint()
         self._file = self._live = None
         if path is not None:
             self._file = _stream(app_id, recording_id, _batcher_config())
