@@ -1,0 +1,196 @@
+"""analysis/make_tables.py and make_figures.py on a small folder of real recordings.
+
+The folder: tiny dynamic-sphere episodes (16 rollouts, horizon 3; environments 0-4 end in a mix
+of outcomes), two tiny cluttered episodes, and two tiny networks trained and timed by
+scenarios.reproduce (Table II: with and without the over-estimation loss). The CSV numbers are
+checked against values computed here from what the episodes returned (EpisodeResult) and from
+the saved weights evaluated again, not from the recordings the scripts read.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from ncedf.data import DatasetConfig, ValidationConfig, load_dataset
+from ncedf.model import load_model
+from ncedf.robot import RobotSpec
+from ncedf.train import evaluate_model
+from scenarios import reproduce
+from scenarios.episode import EpisodeSettings, episode_name, run_episode
+
+ROOT = Path(__file__).resolve().parents[2]
+Z = 1.959963984540054
+SPHERE_ENVS = 5
+TINY_BUDGET = dataclasses.replace(reproduce.QUICK, epochs=2, configs=4, grid=6, surface=20, val_configs=4,
+                                  val_points=64, val_surface=8, timing_repeats=3, timing_samples=16, timing_horizon=3)
+
+
+def sphere_settings(env: int) -> EpisodeSettings:
+    return EpisodeSettings("spheres", 4, seed=0, env_seed=env, shape="spheres", controller="paper", samples=16,
+                           horizon=3, max_steps=25)
+
+
+def cluttered_settings(seed: int) -> EpisodeSettings:
+    return EpisodeSettings("cluttered", 4, seed=seed, shape="spheres", controller="paper", samples=16, horizon=3,
+                           max_steps=4)
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory):
+    """Recordings and what their runs returned: (folder, {stem: EpisodeResult}, datasets)."""
+    runs = tmp_path_factory.mktemp("runs")
+    results = {}
+    for settings in [sphere_settings(e) for e in range(SPHERE_ENVS)] + [cluttered_settings(s) for s in (0, 1)]:
+        sub = runs / settings.scenario
+        sub.mkdir(exist_ok=True)
+        name = episode_name(settings)
+        results[name] = (settings, run_episode(settings, sub / name, formats=("mcap",)))
+    spec = RobotSpec(n_links=1)
+    data_cfg = DatasetConfig(n_configs=TINY_BUDGET.configs, grid=TINY_BUDGET.grid, n_surface=TINY_BUDGET.surface)
+    val_cfg = ValidationConfig(n_configs=TINY_BUDGET.val_configs, n_points=TINY_BUDGET.val_points,
+                               n_surface=TINY_BUDGET.val_surface)
+    data, val = load_dataset(data_cfg, spec), load_dataset(val_cfg, spec)
+    where = reproduce.folder(runs, "table2", TINY_BUDGET)
+    reproduce.write_manifest(where, "table2", TINY_BUDGET, "test", {})
+    points = reproduce.timing_points(reproduce.INFERENCE_POINTS)
+    for net in reproduce.networks("table2", TINY_BUDGET):
+        reproduce.train_network(net, where, TINY_BUDGET, data, val, points, seed=0)
+    return runs, results, val
+
+
+def script(name: str, *args) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, f"analysis/{name}", *map(str, args)], cwd=ROOT, capture_output=True,
+                          text=True, timeout=300)
+
+
+@pytest.fixture(scope="module")
+def tables(folder, tmp_path_factory):
+    runs, _, _ = folder
+    out = tmp_path_factory.mktemp("tables")
+    done = script("make_tables.py", runs, "--out", out)
+    assert done.returncode == 0, done.stderr
+    return out, done
+
+
+def wilson_by_roots(k: int, n: int) -> tuple[float, float]:
+    """The Wilson interval as the roots in p of (k/n - p)^2 = Z^2 p (1 - p) / n."""
+    a = 1 + Z * Z / n
+    b = -(2 * k / n + Z * Z / n)
+    c = (k / n) ** 2
+    return tuple(sorted(np.roots([a, b, c]).real))
+
+
+def pooled(results) -> tuple[float, float]:
+    """Mean and std of the solver time over every MPPI step of these episodes, from their per-episode stats."""
+    n = np.array([r.steps for r in results], float)
+    m = np.array([r.solver_ms_mean for r in results])
+    s = np.array([r.solver_ms_std for r in results])
+    mean = (n * m).sum() / n.sum()
+    second = (n * (s**2 + m**2)).sum() / n.sum()
+    return mean / 1e3, math.sqrt(second - mean**2) / 1e3
+
+
+def test_table3_rates_and_times_match_the_episodes(folder, tables):
+    _, results, _ = folder
+    out, _ = tables
+    row = pd.read_csv(out / "table3.csv").set_index("shape").loc["spheres"]
+    ours = [r for s, r in results.values() if s.scenario == "spheres"]
+    outcomes = [r.outcome for r in ours]
+    assert len(set(outcomes)) > 1, "the fixture should give a mix of outcomes"
+    assert row["episodes"] == SPHERE_ENVS
+    for name in ("success", "collision", "stuck"):
+        k = outcomes.count(name)
+        assert row[f"n_{name}"] == k
+        assert row[name] == pytest.approx(k / SPHERE_ENVS, abs=1e-6)
+        low, high = wilson_by_roots(k, SPHERE_ENVS)
+        assert row[f"{name}_low"] == pytest.approx(low, abs=1e-5)
+        assert row[f"{name}_high"] == pytest.approx(high, abs=1e-5)
+    mean, std = pooled(ours)
+    assert row["mppi_step_s_mean"] == pytest.approx(mean, rel=1e-4)
+    assert row["mppi_step_s_std"] == pytest.approx(std, rel=1e-3)
+    assert row["mppi_steps"] == sum(r.steps for r in ours)
+    assert row["paper_success"] == 0.872 and row["controller"] == "paper" and row["samples"] == 16
+
+
+def test_table4_matches_the_episodes(folder, tables):
+    _, results, _ = folder
+    out, _ = tables
+    df = pd.read_csv(out / "table4.csv")
+    assert len(df) == 1
+    row = df.iloc[0]
+    ours = [r for s, r in results.values() if s.scenario == "cluttered"]
+    assert row["links"] == 4 and row["episodes"] == len(ours)
+    assert row["n_success"] == sum(r.outcome == "success" for r in ours)
+    mean, std = pooled(ours)
+    assert row["mppi_step_s_mean"] == pytest.approx(mean, rel=1e-4)
+    assert row["paper_reach_step"] == 158
+
+
+def test_table2_metrics_match_the_saved_networks(folder, tables):
+    runs, _, val = folder
+    out, done = tables
+    df = pd.read_csv(out / "table2.csv")
+    assert sorted(df["lambda_over"]) == [0.0, 2.0]
+    for row in df.itertuples():
+        net = reproduce.Network(4, 16, row.encoding, row.lambda_over)
+        model = load_model(reproduce.folder(runs, "table2", TINY_BUDGET) / net.name)
+        again = evaluate_model(model, val)
+        for key in ("mae", "rmse", "moe", "over_p999"):
+            assert getattr(row, key) == pytest.approx(again[key], rel=1e-4, abs=1e-6)
+        assert row.epochs == TINY_BUDGET.epochs and row.timing_repeats == TINY_BUDGET.timing_repeats
+        assert row.inference_ms_mean > 0 and row.mppi_step_ms_mean > 0 and row.quick
+    assert "(quick)" in (out / "table2.md").read_text() and "0.017 / 0.024 / 0.002" in done.stdout
+
+
+def test_missing_tables_name_their_command(tables):
+    out, done = tables
+    assert "python -m scenarios.reproduce table1" in done.stderr
+    assert not (out / "table1.csv").exists()
+    for name in ("table2", "table3", "table4"):
+        assert (out / f"{name}.tex").read_text().startswith("\\begin{table}")
+
+
+def test_corrupt_and_unclosed_recordings_are_listed_and_left_out(folder, tmp_path):
+    runs, _, _ = folder
+    copy = tmp_path / "runs"
+    shutil.copytree(runs, copy)
+    (copy / "spheres" / "garbage.mcap").write_bytes(b"not a recording at all")
+    first = sorted((copy / "spheres").glob("spheres_*.mcap"))[0]
+    data = first.read_bytes()
+    first.write_bytes(data[: len(data) * 2 // 3])  # killed writer: no footer
+    done = script("make_tables.py", copy, "--out", tmp_path / "t")
+    assert done.returncode == 0, done.stderr
+    assert "garbage.mcap" in done.stderr and first.name in done.stderr and "left out 2" in done.stderr
+    assert pd.read_csv(tmp_path / "t" / "table3.csv").set_index("shape").loc["spheres", "episodes"] == SPHERE_ENVS - 1
+
+
+def test_figures_and_their_data(folder, tmp_path):
+    runs, results, _ = folder
+    done = script("make_figures.py", runs, "--out", tmp_path)
+    assert done.returncode == 0, done.stderr
+    for name in ("fig3_ncedf_slices", "fig4_sphere_distances", "fig5_cluttered_L4", "mppi_time_vs_links",
+                 "mppi_time_vs_points", "success_rates"):
+        assert (tmp_path / f"{name}.png").stat().st_size > 10_000, name
+        assert (tmp_path / f"{name}.csv").is_file(), name
+    assert "no 5-link cluttered recordings" in done.stderr
+    fig4 = pd.read_csv(tmp_path / "fig4_sphere_distances.csv")
+    stem = Path(fig4["run"].iloc[0]).stem
+    settings, result = results[stem]
+    assert fig4["true_min_distance"].min() == pytest.approx(result.min_true_distance, abs=1e-6)
+    assert len(fig4) == result.steps + 1 or result.outcome == "collision"
+    rates = pd.read_csv(tmp_path / "success_rates.csv").iloc[0]
+    spheres = [r for s, r in results.values() if s.scenario == "spheres"]
+    assert rates["successes"] == sum(r.outcome == "success" for r in spheres)
+    # Fig. 3: the exact distance is zero on the link surface; the slice passes through the backbone
+    fig3 = pd.read_csv(tmp_path / "fig3_ncedf_slices.csv")
+    assert fig3["exact"].min() < 0.02
+    assert np.allclose(fig3["difference"], fig3["learned"] - fig3["exact"], atol=1e-5)
