@@ -24,6 +24,8 @@ from analysis.stats import mean_std, wilson  # noqa: E402
 from recorder import RecorderError, load_run  # noqa: E402
 
 COLUMN_IN = 3.5
+#: The fixed axis of each timing figure (scenarios.reproduce's timing experiment): 4 links, 500 points.
+TIMING_LINKS, TIMING_POINTS = 4, 500
 STYLES = [dict(color="black", linestyle="-", marker="o"), dict(color="0.45", linestyle="--", marker="s"),
           dict(color="0.2", linestyle=":", marker="^"), dict(color="0.6", linestyle="-.", marker="D"),
           dict(color="0.35", linestyle=(0, (5, 1, 1, 1)), marker="v")]
@@ -180,43 +182,48 @@ def snapshot_strip(rec: Recordings, links: int):
 
 
 # ---------------------------------------------------------------- timing and success
-def _episode_times(rec: Recordings) -> pd.DataFrame:
-    """Per episode: scenario, shape, controller, links, observed points, mean MPPI step time (s)."""
-    runs = rec.runs[rec.runs["scenario"].isin(["spheres", "cluttered"])] if "scenario" in rec.runs else rec.runs
+def _timing_plot(rec: Recordings, axis: str, label: str, fixed: str, value: int):
+    """MPPI step time (mean ± std over the timed steps) against ``axis`` at ``fixed`` = ``value``, per
+    representation (``python -m scenarios.reproduce timing``)."""
+    runs = rec.scenario("timing")
+    if not runs.empty:
+        runs = runs[runs[fixed] == value]
     if runs.empty:
-        return pd.DataFrame()
-    per = rec.steps.groupby("run_id")["solver_ms"].mean() / 1e3
-    out = runs[["run_id", "scenario", "shape", "controller", "links", "observed_points", "quick"]].copy()
-    out["mppi_step_s"] = out["run_id"].map(per)
-    return out.dropna(subset=["mppi_step_s"])
-
-
-def _timing_plot(rec: Recordings, axis: str, label: str):
-    times = _episode_times(rec)
-    if times.empty:
-        return f"MPPI time vs {axis}: skipped, no episode recordings (python -m scenarios.reproduce table3/table4)"
+        return f"MPPI time vs {axis}: skipped, no timing recordings (python -m scenarios.reproduce timing --out RUNS)"
     fig, ax = plt.subplots(figsize=(COLUMN_IN, 2.4), constrained_layout=True)
+    order = {s: i for i, s in enumerate(paper.TABLE3)}
+    groups = sorted(runs.groupby(["shape", "quick", "mppi.samples", "mppi.horizon"]),
+                    key=lambda g: (order.get(g[0][0], 99), g[0]))
     rows = []
-    for i, ((shape, controller, quick), g) in enumerate(times.groupby(["shape", "controller", "quick"])):
-        stats = [(x, *mean_std(gg["mppi_step_s"])) for x, gg in g.groupby(axis)]
+    for i, ((shape, quick, samples, horizon), g) in enumerate(groups):
+        stats = []
+        for x, gg in g.groupby(axis):
+            steps = rec.steps[rec.steps["run_id"].isin(set(gg["run_id"]))]
+            stats.append((x, *mean_std(steps["solver_ms"] / 1e3)))
         x, m, sd, n = (np.array(v) for v in zip(*stats))
-        ax.errorbar(x, m, yerr=sd, capsize=2, ms=4, label=f"{shape}, {controller}" + (" (quick)" if quick else ""),
-                    **STYLES[i % len(STYLES)])
-        rows.append(pd.DataFrame({"shape": shape, "controller": controller, "quick": quick, axis: x,
-                                  "mppi_step_s_mean": m, "mppi_step_s_std": sd, "episodes": n}))
+        ax.errorbar(x, m, yerr=sd, capsize=2, ms=4, **STYLES[i % len(STYLES)],
+                    label=f"{shape} ({int(samples)} samples, H {int(horizon)})" + (" quick" if quick else ""))
+        rows.append(pd.DataFrame({"shape": shape, "quick": quick, "samples": int(samples), "horizon": int(horizon),
+                                  fixed: value, axis: x, "mppi_step_s_mean": m, "mppi_step_s_std": sd,
+                                  "timed_steps": n}))
     ax.set_xlabel(label)
     ax.set_ylabel("MPPI step time (s)")
     ax.set_yscale("log")
-    ax.legend(frameon=False, fontsize=6)
+    if axis == "observed_points":
+        ax.set_xscale("log")
+    ax.set_xticks(sorted(runs[axis].unique()), [str(int(v)) for v in sorted(runs[axis].unique())])
+    ax.minorticks_off()
+    ax.set_title(f"{'4 links' if fixed == 'links' else f'{value} obstacle points'}; one CPU core-share")
+    ax.legend(frameon=False, fontsize=6, loc="upper left", bbox_to_anchor=(1.0, 1.0))
     return fig, pd.concat(rows, ignore_index=True)
 
 
 def mppi_time_vs_links(rec: Recordings):
-    return _timing_plot(rec, "links", "robot links")
+    return _timing_plot(rec, "links", "robot links", "observed_points", TIMING_POINTS)
 
 
 def mppi_time_vs_points(rec: Recordings):
-    return _timing_plot(rec, "observed_points", "observed obstacle points")
+    return _timing_plot(rec, "observed_points", "obstacle points", "links", TIMING_LINKS)
 
 
 def success_rates(rec: Recordings):
@@ -234,7 +241,7 @@ def success_rates(rec: Recordings):
         rows.append({"shape": shape, "controller": controller, "quick": quick, "episodes": n, "successes": k,
                      "success": k / n, "low": low, "high": high, "paper_success": paper.TABLE3.get(shape, (np.nan,))[0]})
     df = pd.DataFrame(rows)
-    fig, ax = plt.subplots(figsize=(COLUMN_IN, 2.4), constrained_layout=True)
+    fig, ax = plt.subplots(figsize=(COLUMN_IN, 1.0 + 0.22 * len(df)), constrained_layout=True)
     y = np.arange(len(df))
     ax.errorbar(df["success"], y, xerr=[df["success"] - df["low"], df["high"] - df["success"]], fmt="o",
                 color="black", capsize=2, ms=4, label="ours, Wilson 95% interval")
@@ -244,7 +251,7 @@ def success_rates(rec: Recordings):
     ax.set_xlabel("success rate")
     ax.set_xlim(-0.02, 1.02)
     ax.invert_yaxis()
-    ax.legend(frameon=False, loc="lower left", fontsize=6)
+    ax.legend(frameon=False, loc="upper center", bbox_to_anchor=(0.5, -0.18 - 1.0 / len(df)), ncol=2, fontsize=6)
     return fig, df
 
 

@@ -17,10 +17,10 @@ from analysis.report import Table, fmt, fmt_pm, fmt_rate
 from analysis.stats import mean_std, wilson
 
 REPRODUCE = "python -m scenarios.reproduce {table} --out RUNS"
-JUDGE_NOTE = ("Our judge differs from the paper's: a collision is any instant with exact robot-obstacle distance "
-              "< 0 on the continuous motion between control steps (obstacles moving), not a check at the "
-              "control steps with the controller's own representation; collision rates are therefore not lower "
-              "than a per-step check would give.")
+JUDGE_NOTE = ("Our judge differs from the paper's (which it does not state): a collision is any instant with "
+              "exact robot-obstacle distance < 0 on the continuous motion between control steps, obstacles "
+              "moving, independent of the representation the controller uses; a check at the control steps "
+              "alone could miss collisions between them.")
 QUICK_NOTE = "Rows marked (quick) come from `--quick` runs: tiny budgets, numbers only show the pipeline works."
 
 
@@ -158,7 +158,7 @@ def table3(rec: Recordings) -> Table | str:
                      "max_steps": int(max_steps), "quick": bool(quick), **r, "mppi_step_s_mean": t_mean,
                      "mppi_step_s_std": t_std, "mppi_steps": t_n, "paper_success": ref[0], "paper_collision": ref[1],
                      "paper_stuck": ref[2], "paper_mppi_step_s": ref[3], "paper_environments": paper.TABLE3_ENVIRONMENTS})
-        rows.append([f"{shape}{_quick_tag(quick)}", f"{controller} ({samples}, H {horizon})", str(r["episodes"]),
+        rows.append([f"{shape}{_quick_tag(quick)}", f"{controller} ({int(samples)}, H {int(horizon)})", str(r["episodes"]),
                      fmt_rate(r["success"], r["success_low"], r["success_high"]), fmt(ref[0]),
                      fmt_rate(r["collision"], r["collision_low"], r["collision_high"]), fmt(ref[1]),
                      fmt_rate(r["stuck"], r["stuck_low"], r["stuck_high"]), fmt(ref[2]),
@@ -193,7 +193,7 @@ def table4(rec: Recordings) -> Table | str:
                      "mppi_step_s_mean": t_mean, "mppi_step_s_std": t_std, "mppi_steps": t_n,
                      "reach_step_mean": reach_mean, "reach_step_std": reach_std, "reached": reach_n,
                      "paper_mppi_step_s_mean": ref[0], "paper_mppi_step_s_std": ref[1], "paper_reach_step": ref[2]})
-        rows.append([f"{int(links)}{_quick_tag(quick)}", shape, f"{controller} ({samples}, H {horizon})",
+        rows.append([f"{int(links)}{_quick_tag(quick)}", shape, f"{controller} ({int(samples)}, H {int(horizon)})",
                      str(r["episodes"]), fmt_rate(r["success"], r["success_low"], r["success_high"]),
                      fmt_rate(r["collision"], r["collision_low"], r["collision_high"]),
                      fmt_pm(t_mean, t_std, 4), fmt_pm(ref[0], ref[1], 4),

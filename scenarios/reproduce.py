@@ -1,6 +1,6 @@
 """The experiments behind the paper's Tables I-IV, written as recordings for ``analysis/``.
 
-    python -m scenarios.reproduce {table1,table2,table3,table4,all} --out runs/ [--quick]
+    python -m scenarios.reproduce {table1,table2,table3,table4,timing,all} --out runs/ [--quick]
 
 Each table has its folder under ``--out`` (``table1`` ... ``table4``; with
 ``--quick`` ``table1-quick`` ...), holding one recording per network or episode
@@ -21,6 +21,9 @@ package versions (quick results are marked there and in every table).
   pointcloud:5000 x every controller of ``scenarios.presets.CONTROLLERS``
   (``--envs`` environments; ``--envs-5000`` for pointcloud:5000).
 * Table IV: cluttered, 4 / 5 / 7 links x ``--seeds`` seeds x every controller.
+* timing (the MPPI time figures): one step of the paper's controller (800 samples, horizon 20) per
+  representation, against link count (4 / 5 / 7 at 500 points) and obstacle points (100 ... 5000 at
+  4 links), ``--timing-repeats`` timed steps each, recorded as ``solver_ms`` rows.
 
 Tables III and IV run through ``scenarios.sweep.run_sweep``. Everything resumes:
 a network or episode whose recording is closed with a final outcome is skipped,
@@ -59,7 +62,11 @@ TABLE4_LINKS = (4, 5, 7)
 TIMING_LINKS, TIMING_SAMPLES, TIMING_HORIZON = 4, 800, 20
 #: Obstacle points of the inference timing.
 INFERENCE_POINTS = 500
-TABLES = ("table1", "table2", "table3", "table4")
+#: Timing figure: representations, link counts (at INFERENCE_POINTS points), point counts (at 4 links).
+TIMING_SHAPES = TABLE3_SHAPES
+TIMING_LINK_COUNTS = (4, 5, 7)
+TIMING_POINT_COUNTS = (100, 250, 500, 1000, 2000, 5000)
+TABLES = ("table1", "table2", "table3", "table4", "timing")
 EXPERIMENT = "experiment"  # stem of an experiment's manifest recording
 PAPER_EPOCHS = 100
 
@@ -79,6 +86,7 @@ class Budget:
       samples, horizon, max_steps: episode overrides (None: the controller's and scenario's).
       workers: sweep worker processes (None: one per core).
       layers, widths: the Table I grid.
+      timing_shapes, timing_links, timing_points: the MPPI timing experiment's grid.
       quick: a smoke-sized run.
     """
 
@@ -101,12 +109,17 @@ class Budget:
     workers: int | None = None
     layers: tuple[int, ...] = LAYERS
     widths: tuple[int, ...] = WIDTHS
+    timing_shapes: tuple[str, ...] = TIMING_SHAPES
+    timing_links: tuple[int, ...] = TIMING_LINK_COUNTS
+    timing_points: tuple[int, ...] = TIMING_POINT_COUNTS
     quick: bool = False
 
 
 QUICK = Budget(epochs=1, configs=20, grid=12, surface=200, val_configs=10, val_points=512, val_surface=32,
                timing_repeats=3, timing_samples=64, timing_horizon=8, envs=1, envs_5000=1, seeds=1,
-               samples=64, horizon=8, max_steps=20, layers=(2, 4), widths=(16, 32), quick=True)
+               samples=64, horizon=8, max_steps=20, layers=(2, 4), widths=(16, 32),
+               timing_shapes=("ncedf", "spheres", "pointcloud:1000"), timing_links=(4, 7), timing_points=(250, 1000),
+               quick=True)
 
 
 def folder(out: Path, table: str, budget: Budget) -> Path:
@@ -171,17 +184,26 @@ def networks(table: str, budget: Budget) -> list[Network]:
     return [Network(layers, width, ModelConfig.encoding, lo) for lo in (TrainConfig.lambda_over, 0.0)]
 
 
-def timing_points(n_points: int | None = None):
-    """The cluttered scene's observed cloud at t = 0 (paper: about 500 points), float32 (P, 3)."""
+def timing_points(n_points: int, seed: int = 0):
+    """``n_points`` obstacle points like the cluttered scene's observed cloud at t = 0 (about 500 points on
+    its boxes and spheres): its first points, or, for more, its points drawn again with 2 cm jitter. (P, 3) float32."""
+    import numpy as np
+
     from scenarios.episode import EpisodeSettings, build_scene
 
     scene = build_scene(EpisodeSettings("cluttered", TIMING_LINKS, 0))
-    points = scene.observer.observe(0.0)
-    return points if n_points is None else points[:n_points]
+    points = np.asarray(scene.observer.observe(0.0), dtype=np.float32)
+    if n_points <= len(points):
+        return points[:n_points]
+    rng = np.random.default_rng(seed)
+    extra = points[rng.integers(0, len(points), n_points - len(points))]
+    return np.concatenate([points, extra + rng.normal(0.0, 0.02, extra.shape).astype(np.float32)])
 
 
-def mppi_step_ms(model, points, budget: Budget, seed: int = 0) -> list[float]:
-    """Wall times (ms) of ``budget.timing_repeats`` MPPI steps after compilation, 4 links, N-CEDF shape."""
+def mppi_step_ms(model, points, budget: Budget, seed: int = 0, shape: str = "ncedf",
+                 links: int = TIMING_LINKS) -> list[float]:
+    """Wall times (ms) of ``budget.timing_repeats`` MPPI steps after compilation from the straight state
+    towards the cluttered scene's goal (``model``: the N-CEDF for shape ncedf, else unused)."""
     import jax
     import jax.numpy as jnp
     import numpy as np
@@ -192,10 +214,10 @@ def mppi_step_ms(model, points, budget: Budget, seed: int = 0) -> list[float]:
     from scenarios.cluttered import GOAL
     from scenarios.presets import mppi_config
 
-    spec = RobotSpec(TIMING_LINKS)
-    config = mppi_config("paper", "cluttered", TIMING_LINKS, n_points=len(points), samples=budget.timing_samples,
+    spec = RobotSpec(links)
+    config = mppi_config("paper", "cluttered", links, n_points=len(points), samples=budget.timing_samples,
                          horizon=budget.timing_horizon)
-    mppi = MPPI(spec, make_shape("ncedf", spec, model=model), config)
+    mppi = MPPI(spec, make_shape(shape, spec, model=model) if shape == "ncedf" else make_shape(shape, spec), config)
     state = mppi.init(jax.random.PRNGKey(seed))
     arc = jnp.asarray(spec.straight_state(), jnp.float32)
     goal = jnp.asarray(GOAL, jnp.float32)
@@ -279,7 +301,7 @@ def run_networks(table: str, out: Path, budget: Budget, seed: int, command: str)
         return 0
     spec = RobotSpec(n_links=1)
     data, val = load_dataset(data_cfg, spec), load_dataset(val_cfg, spec)
-    points = timing_points(INFERENCE_POINTS)
+    points = timing_points(INFERENCE_POINTS, seed)
     for net in tqdm(todo, desc=table, unit="network", file=sys.stderr, dynamic_ncols=True):
         train_network(net, where, budget, data, val, points, seed)
     return 0
@@ -315,9 +337,48 @@ def run_episodes(table: str, out: Path, budget: Budget, seed: int, command: str)
     return report.exit_status
 
 
+# ---------------------------------------------------------------- MPPI step time per representation
+def timing_cases(budget: Budget) -> list[tuple[str, int, int]]:
+    """(shape, links, points): link counts at INFERENCE_POINTS points, point counts at TIMING_LINKS links."""
+    cases = [(s, l, INFERENCE_POINTS) for s in budget.timing_shapes for l in budget.timing_links]
+    cases += [(s, TIMING_LINKS, p) for s in budget.timing_shapes for p in budget.timing_points]
+    return list(dict.fromkeys(cases))
+
+
+def run_timing(out: Path, budget: Budget, seed: int, command: str) -> int:
+    """Time MPPI steps per representation against links and obstacle points; one recording per case."""
+    import re
+
+    from tqdm import tqdm
+
+    from ncedf.model import load_model
+    from recorder import Recorder
+    from scenarios.sweep import read_complete
+
+    where = folder(out, "timing", budget)
+    write_manifest(where, "timing", budget, command, {"cases": len(timing_cases(budget))})
+    name = {c: f"timing_{re.sub(r'[^A-Za-z0-9]+', '-', c[0])}_L{c[1]}_P{c[2]}" for c in timing_cases(budget)}
+    todo = [c for c in timing_cases(budget) if read_complete(where / name[c], ("mcap",)) is None]
+    print(f"timing: {len(name)} cases in {where}, {len(todo)} to run", file=sys.stderr)
+    model = load_model() if todo else None
+    for case in tqdm(todo, desc="timing", unit="case", file=sys.stderr, dynamic_ncols=True):
+        shape, links, n_points = case
+        points = timing_points(n_points, seed)
+        meta = {"run_id": f"{where.name}/{name[case]}", "scenario": "timing", "quick": budget.quick, "shape": shape,
+                "links": links, "observed_points": n_points, "controller": "paper",
+                "mppi": {"samples": budget.timing_samples, "horizon": budget.timing_horizon}, "model": "shipped default"}
+        with Recorder(where / name[case], meta, ("mcap",), overwrite=True) as rec:
+            for i, ms in enumerate(mppi_step_ms(model, points, budget, seed, shape, links)):
+                rec.log_step(i, float(i), metrics={"solver_ms": ms})
+            rec.finish({"outcome": "success", "steps": budget.timing_repeats})
+    return 0
+
+
 def run_table(table: str, out: Path, budget: Budget, seed: int, command: str) -> int:
     if table in ("table1", "table2"):
         return run_networks(table, out, budget, seed, command)
+    if table == "timing":
+        return run_timing(out, budget, seed, command)
     return run_episodes(table, out, budget, seed, command)
 
 
@@ -336,6 +397,8 @@ def parse_args(argv=None):
     p.add_argument("--envs-5000", type=int, help=f"Table III environments for pointcloud:5000 "
                                                  f"(default {Budget.envs_5000})")
     p.add_argument("--seeds", type=int, help=f"Table IV seeds (default {Budget.seeds})")
+    p.add_argument("--timing-repeats", type=int, help=f"timed steps per network or timing case "
+                                                      f"(default {Budget.timing_repeats}, quick {QUICK.timing_repeats})")
     p.add_argument("--workers", type=int, help="sweep worker processes (default: one per core)")
     p.add_argument("--seed", type=int, default=0, help="training seed (default 0)")
     return p.parse_args(argv)
@@ -343,7 +406,7 @@ def parse_args(argv=None):
 
 def budget_from(args) -> Budget:
     base = QUICK if args.quick else Budget()
-    changes = {k: getattr(args, k) for k in ("epochs", "envs", "envs_5000", "seeds", "workers")
+    changes = {k: getattr(args, k) for k in ("epochs", "envs", "envs_5000", "seeds", "workers", "timing_repeats")
                if getattr(args, k) is not None}
     for name, value in changes.items():
         if value < 1:

@@ -31,7 +31,8 @@ ROOT = Path(__file__).resolve().parents[2]
 Z = 1.959963984540054
 SPHERE_ENVS = 5
 TINY_BUDGET = dataclasses.replace(reproduce.QUICK, epochs=2, configs=4, grid=6, surface=20, val_configs=4,
-                                  val_points=64, val_surface=8, timing_repeats=3, timing_samples=16, timing_horizon=3)
+                                  val_points=64, val_surface=8, timing_repeats=3, timing_samples=16, timing_horizon=3,
+                                  timing_shapes=("spheres",), timing_links=(4, 5), timing_points=(250,))
 
 
 def sphere_settings(env: int) -> EpisodeSettings:
@@ -64,6 +65,7 @@ def folder(tmp_path_factory):
     points = reproduce.timing_points(reproduce.INFERENCE_POINTS)
     for net in reproduce.networks("table2", TINY_BUDGET):
         reproduce.train_network(net, where, TINY_BUDGET, data, val, points, seed=0)
+    assert reproduce.run_timing(runs, TINY_BUDGET, 0, "test") == 0
     return runs, results, val
 
 
@@ -182,6 +184,10 @@ def test_figures_and_their_data(folder, tmp_path):
         assert (tmp_path / f"{name}.png").stat().st_size > 10_000, name
         assert (tmp_path / f"{name}.csv").is_file(), name
     assert "no 5-link cluttered recordings" in done.stderr
+    links = pd.read_csv(tmp_path / "mppi_time_vs_links.csv")
+    assert list(links["links"]) == [4, 5] and (links["timed_steps"] == TINY_BUDGET.timing_repeats).all()
+    points = pd.read_csv(tmp_path / "mppi_time_vs_points.csv")
+    assert sorted(points["observed_points"]) == [250, 500] and (points["mppi_step_s_mean"] > 0).all()
     fig4 = pd.read_csv(tmp_path / "fig4_sphere_distances.csv")
     stem = Path(fig4["run"].iloc[0]).stem
     settings, result = results[stem]
