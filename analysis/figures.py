@@ -213,8 +213,8 @@ def _timing_plot(rec: Recordings, axis: str, label: str, fixed: str, value: int)
         ax.set_xscale("log")
     ax.set_xticks(sorted(runs[axis].unique()), [str(int(v)) for v in sorted(runs[axis].unique())])
     ax.minorticks_off()
-    ax.set_title(f"{'4 links' if fixed == 'links' else f'{value} obstacle points'}; one CPU core-share")
-    ax.legend(frameon=False, fontsize=6, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    ax.set_title(f"{value} {'links' if fixed == 'links' else 'obstacle points'}, timed on the CPU")
+    fig.legend(frameon=False, fontsize=6, loc="outside lower center", ncol=1)
     return fig, pd.concat(rows, ignore_index=True)
 
 
@@ -241,17 +241,18 @@ def success_rates(rec: Recordings):
         rows.append({"shape": shape, "controller": controller, "quick": quick, "episodes": n, "successes": k,
                      "success": k / n, "low": low, "high": high, "paper_success": paper.TABLE3.get(shape, (np.nan,))[0]})
     df = pd.DataFrame(rows)
-    fig, ax = plt.subplots(figsize=(COLUMN_IN, 1.0 + 0.22 * len(df)), constrained_layout=True)
+    fig, ax = plt.subplots(figsize=(COLUMN_IN, 1.2 + 0.2 * len(df)), layout="constrained")
     y = np.arange(len(df))
     ax.errorbar(df["success"], y, xerr=[df["success"] - df["low"], df["high"] - df["success"]], fmt="o",
                 color="black", capsize=2, ms=4, label="ours, Wilson 95% interval")
     ax.plot(df["paper_success"], y, "x", color="0.45", ms=6, label="paper (1000 environments)")
-    ax.set_yticks(y, [f"{r.shape}, {r.controller} (n={r.episodes})" + (" quick" if r.quick else "")
-                      for r in df.itertuples()])
+    ax.set_yticks(y, [f"{r.shape}, {r.controller}" + (" (quick)" if r.quick else "") for r in df.itertuples()])
+    counts = sorted(set(df["episodes"]))
+    ax.set_title(f"dynamic spheres, environments per row: {'/'.join(map(str, counts))}")
     ax.set_xlabel("success rate")
     ax.set_xlim(-0.02, 1.02)
     ax.invert_yaxis()
-    ax.legend(frameon=False, loc="upper center", bbox_to_anchor=(0.5, -0.18 - 1.0 / len(df)), ncol=2, fontsize=6)
+    fig.legend(frameon=False, loc="outside lower center", ncol=2, fontsize=6)
     return fig, df
 
 
