@@ -2,7 +2,8 @@
 
     python bench/closed_loop.py --quick
     python bench/closed_loop.py --links 4,5,7 --seeds 5 --envs 20 --variants release,ours,paper
-    python bench/closed_loop.py --variants ours,ours-no-check --scenarios cluttered --seeds 20
+    python bench/closed_loop.py --variants ours,ours-check --scenarios cluttered --seeds 20
+    python bench/closed_loop.py --variants ours,ours:target_ess=0.05:noise_smoothing=0.5 --links 4
 
 A variant is the ``release`` or ``ours`` preset of ``scenarios.presets`` with
 some MPPIConfig fields changed (``VARIANTS``): ``ours`` with one of its changes
@@ -16,6 +17,8 @@ collision / stuck counts with 95% Wilson intervals of their rates, the median
 reach step of the successes, and the solver time per MPPI step (mean +- std
 over the steps of all its episodes), then per group the ratio of each
 variant's mean solver time to ``paper``'s (same run, same rollouts and horizon).
+Besides the named variants, ``PRESET:FIELD=VALUE[:FIELD=VALUE...]`` is a preset
+with MPPIConfig fields changed (values: numbers, true, false, none or text).
 
 One process, episodes in sequence (a configuration compiles once). ``--json``
 also writes every episode's result. Ctrl-C prints the table of the episodes
@@ -37,7 +40,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from ncedf.mppi import MPPI
+from ncedf.mppi import MPPI, MPPIConfig
 from scenarios.episode import Episode, EpisodeSettings
 from scenarios.presets import PRESETS
 
@@ -56,6 +59,36 @@ VARIANTS: dict[str, tuple[str, dict]] = {
 #: z for a 95% interval.
 Z95 = 1.959963984540054
 QUICK = {"links": "4,5,7", "seeds": 1, "envs": 2, "variants": "ours,paper", "max_steps": 60}
+
+
+def parse_value(text: str):
+    """A field value from the command line: none, true, false, an int, a float, or the text."""
+    lowered = text.lower()
+    if lowered in ("none", "true", "false"):
+        return {"none": None, "true": True, "false": False}[lowered]
+    for cast in (int, float):
+        try:
+            return cast(text)
+        except ValueError:
+            pass
+    return text
+
+
+def resolve(variant: str) -> tuple[str, dict]:
+    """(preset, changed fields) of a named variant or of ``PRESET:FIELD=VALUE:...``."""
+    if variant in VARIANTS:
+        return VARIANTS[variant]
+    preset, *pairs = variant.split(":")
+    if preset not in PRESETS or not pairs or any("=" not in pair for pair in pairs):
+        raise ValueError(f"unknown variant {variant!r}; choose from {', '.join(VARIANTS)} "
+                         "or PRESET:FIELD=VALUE[:...]")
+    fields = {}
+    for pair in pairs:
+        name, value = pair.split("=", 1)
+        if name not in {f.name for f in dataclasses.fields(MPPIConfig)}:
+            raise ValueError(f"unknown MPPIConfig field {name!r} in variant {variant!r}")
+        fields[name] = parse_value(value)
+    return preset, fields
 
 
 def wilson(k: int, n: int, z: float = Z95) -> tuple[float, float]:
@@ -84,7 +117,7 @@ def episodes(args) -> list[tuple[str, EpisodeSettings]]:
 
 def run_one(variant: str, settings: EpisodeSettings):
     """One episode of ``variant`` (no recording): its EpisodeResult."""
-    preset, fields = VARIANTS[variant]
+    preset, fields = resolve(variant)
     if preset == "paper":  # at ours's rollouts and horizon
         samples, horizon = PRESETS["ours"].sizes(settings.scenario, settings.links)
         settings = dataclasses.replace(settings, samples=samples, horizon=horizon)
@@ -123,6 +156,23 @@ def summarise(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def parse_variants(text: str) -> list[str]:
+    values = parse_list(text, str, "variant")
+    for value in values:
+        try:
+            _, fields = resolve(value)
+            if fields:
+                episodes_config_check(fields)
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+    return values
+
+
+def episodes_config_check(fields: dict) -> None:
+    """Raise ValueError naming a bad field value (MPPIConfig's own validation)."""
+    dataclasses.replace(MPPIConfig(), **fields)
+
+
 def parse_list(text: str, cast, name: str, allowed=None):
     try:
         values = [cast(v) for v in text.split(",") if v]
@@ -150,8 +200,9 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], epilog=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--variants", default="release,ours,paper",
-                   type=lambda t: parse_list(t, str, "variant", VARIANTS),
-                   help=f"comma-separated, from: {', '.join(VARIANTS)} (default release,ours,paper)")
+                   type=parse_variants,
+                   help=f"comma-separated, from: {', '.join(VARIANTS)}, or PRESET:FIELD=VALUE[:...] "
+                        "(default release,ours,paper)")
     p.add_argument("--scenarios", default="cluttered,spheres",
                    type=lambda t: parse_list(t, str, "scenario", ("cluttered", "spheres")))
     p.add_argument("--links", default="4,5,7", type=lambda t: parse_list(t, int, "links"),

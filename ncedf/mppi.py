@@ -47,6 +47,14 @@ farthest from the cloud after one step, the MPPI action scaled by
 over the step is at least ``safety_margin + check_margin`` is executed; if none
 is, the one with the largest clearance.
 
+Moving obstacles (``predict_motion``): the controller keeps the previous
+cloud; a point's velocity is its displacement since the previous step over dt
+(clouds whose row ``i`` is the same physical point at every step, as the
+scenarios observe them; zero at the first step or for a row that was padding).
+Rollout state ``x^k`` is then scored against the cloud moved by ``k dt`` times
+the velocities, and the safety check's substep ``s`` against the cloud moved by
+``s/S dt``.
+
 The step is a pure function, :func:`mppi_step` (jitted with the robot and the
 settings static, so every controller built with them shares its compiled
 programs). :class:`MPPI` is a thin validating shell: :meth:`MPPI.step` checks its
@@ -113,6 +121,8 @@ class MPPIConfig:
       safety_check: check the executed action against the cloud (module docstring).
       check_substeps: states checked over the step.  check_margin: clearance
         above ``safety_margin`` the check demands, m.
+      predict_motion: move the cloud at the velocities estimated from the
+        previous step's cloud (module docstring).
     """
 
     samples: int = 800
@@ -144,6 +154,7 @@ class MPPIConfig:
     safety_check: bool = False
     check_substeps: int = 4
     check_margin: float = 0.0
+    predict_motion: bool = False
 
     def __post_init__(self):
         def num(name):
@@ -177,7 +188,7 @@ class MPPIConfig:
             raise ValueError(f"MPPIConfig.target_ess must be in (0, 1] or None, got {self.target_ess}")
         if self.sampling not in SAMPLING:
             raise ValueError(f"MPPIConfig.sampling must be one of {', '.join(SAMPLING)}, got {self.sampling!r}")
-        for name in ("broad_phase", "limit_action", "safety_check"):
+        for name in ("broad_phase", "limit_action", "safety_check", "predict_motion"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"MPPIConfig.{name} must be a bool, got {getattr(self, name)!r}")
         if self.shift_fill not in ("last", "zero"):
@@ -185,10 +196,13 @@ class MPPIConfig:
 
 
 class MPPIState(NamedTuple):
-    """Controller state (a pytree): nominal controls (H, M, 3) m/s and a PRNG key."""
+    """Controller state (a pytree): nominal controls (H, M, 3) m/s, a PRNG key, and the
+    previous step's cloud (max_points, 3) m with its mask (max_points,) (all False at first)."""
 
     nominal: jnp.ndarray
     key: jnp.ndarray
+    previous: jnp.ndarray
+    previous_mask: jnp.ndarray
 
 
 class MPPIInfo(NamedTuple):
@@ -297,19 +311,30 @@ def temperature_for_ess(norm: jnp.ndarray, target: float) -> jnp.ndarray:
 
 
 def step_clearance(shape, arc: jnp.ndarray, actions: jnp.ndarray, points, mask, dt: float,
-                   substeps: int) -> jnp.ndarray:
+                   substeps: int, velocity=None) -> jnp.ndarray:
     """Predicted clearance over one step for each action: min over the states
-    ``arc + (s / S) u dt``, s = 1..S, of the representation's min distance to the cloud.
+    ``arc + (s / S) u dt``, s = 1..S, of the representation's min distance to the cloud
+    (moved by ``(s / S) dt velocity`` when velocities are given).
 
     Args:
       arc: (M, 3) m.  actions: (C, M, 3) m/s.  points: (P, 3) m; mask: (P,) bool.
+      velocity: (P, 3) m/s or None.
     Returns:
       (C,) m (+inf for an empty cloud).
     """
     frac = jnp.arange(1, substeps + 1, dtype=arc.dtype) / substeps
     states = arc + dt * frac[None, :, None, None] * actions[:, None]  # (C, S, M, 3)
-    dist = jax.vmap(jax.vmap(lambda a: shape.min_distance(points, a, mask)))(states)
-    return jnp.min(dist, axis=1)
+    velocity = jnp.zeros_like(points) if velocity is None else velocity
+    clouds = points + dt * frac[:, None, None] * velocity  # (S, P, 3)
+    per_substep = jax.vmap(lambda a, p: shape.min_distance(p, a, mask))  # over S
+    return jnp.min(jax.vmap(lambda a: per_substep(a, clouds))(states), axis=1)
+
+
+def cloud_velocity(points, mask, previous, previous_mask, dt: float) -> jnp.ndarray:
+    """(P, 3) m/s: each row's displacement since the previous cloud over dt; zero where
+    either cloud has padding."""
+    both = (mask & previous_mask)[:, None]
+    return jnp.where(both, (points - previous) / dt, 0.0)
 
 
 def limit_to_state_bounds(arc: jnp.ndarray, u: jnp.ndarray, dt: float, spec: RobotSpec) -> jnp.ndarray:
@@ -326,12 +351,21 @@ def limit_to_state_bounds(arc: jnp.ndarray, u: jnp.ndarray, dt: float, spec: Rob
 
 
 def init_state(spec: RobotSpec, config: MPPIConfig, key) -> MPPIState:
-    """Zero nominal controls (paper: the initial reference is zero) and the key."""
-    return MPPIState(jnp.zeros((config.horizon, spec.n_links, 3), jnp.float32), jnp.asarray(key))
+    """Zero nominal controls (paper: the initial reference is zero), the key, no previous cloud."""
+    return MPPIState(jnp.zeros((config.horizon, spec.n_links, 3), jnp.float32), jnp.asarray(key),
+                     jnp.zeros((config.max_points, 3), jnp.float32), jnp.zeros(config.max_points, bool))
 
 
 def rollout_min_distances(config: MPPIConfig, shape, arcs, points, mask, frames=None):
-    """(N, H) min distance per rollout state (N, H, M, 3), by the broad phase or brute force."""
+    """(N, H) min distance per rollout state (N, H, M, 3), by the broad phase or brute force.
+
+    ``points`` is one cloud (P, 3), or (H, P, 3): one per horizon step (moving obstacles).
+    """
+    if points.ndim == 3:
+        frames = forward_kinematics(arcs, shape.spec) if frames is None else frames
+        per_step = jax.vmap(lambda a, f, p: rollout_min_distances(config, shape, a[:, None], p, mask, f[:, None]),
+                            in_axes=(1, 1, 0))
+        return per_step(arcs, frames, points)[..., 0].T
     if config.broad_phase:
         return rollout_min_distances_broad(shape, arcs, points, mask, config.k1, config.k2, config.capsule_segments,
                                            frames)
@@ -371,7 +405,13 @@ def mppi_step(spec: RobotSpec, config: MPPIConfig, shape, state: MPPIState, arc,
     # Per-state terms.
     frames = forward_kinematics(arcs, spec)  # (N, H, M + 1, 4, 4)
     goal_d = goal_distance(frames[..., -1, :, :], goal)  # (N, H)
-    dist = rollout_min_distances(config, shape, arcs, points, mask, frames)  # (N, H)
+    if c.predict_motion:
+        velocity = cloud_velocity(points, mask, state.previous, state.previous_mask, c.dt)
+        ahead = c.dt * jnp.arange(1, c.horizon + 1, dtype=points.dtype)
+        dist = rollout_min_distances(config, shape, arcs, points + ahead[:, None, None] * velocity, mask, frames)
+    else:
+        velocity = None
+        dist = rollout_min_distances(config, shape, arcs, points, mask, frames)  # (N, H)
     coll = 1.0 / jnp.maximum(dist - c.safety_margin, c.epsilon)
     viol = jnp.sum(jnp.maximum(spec.l_min - arcs, 0.0) + jnp.maximum(arcs - spec.l_max, 0.0), axis=(-2, -1))
 
@@ -402,7 +442,7 @@ def mppi_step(spec: RobotSpec, config: MPPIConfig, shape, state: MPPIState, arc,
                                + [s * action for s in CHECK_SCALES] + [jnp.zeros_like(action)])
         if c.limit_action:
             candidates = jax.vmap(lambda a: limit_to_state_bounds(arc, a, c.dt, spec))(candidates)
-        clear = step_clearance(shape, arc, candidates, points, mask, c.dt, c.check_substeps)
+        clear = step_clearance(shape, arc, candidates, points, mask, c.dt, c.check_substeps, velocity)
         ok = clear >= c.safety_margin + c.check_margin
         choice = jnp.where(jnp.any(ok), jnp.argmax(ok), jnp.argmax(clear))
         action, clearance = candidates[choice], clear[choice]
@@ -430,7 +470,7 @@ def mppi_step(spec: RobotSpec, config: MPPIConfig, shape, state: MPPIState, arc,
         action_clearance=clearance,
         action_choice=choice,
     )
-    return action, MPPIState(next_nominal, key), info
+    return action, MPPIState(next_nominal, key, points, mask), info
 
 
 class MPPI:

@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 
 from ncedf.geometry import robot_signed_distance
-from ncedf.mppi import (TEMPERATURE_GRID, MPPIConfig, MPPIState, mppi_step, release_controls, smoothing_matrix,
-                        step_clearance, temperature_for_ess)
+from ncedf.mppi import (TEMPERATURE_GRID, MPPIConfig, cloud_velocity, init_state, mppi_step, release_controls,
+                        rollout_min_distances,
+                        smoothing_matrix, step_clearance, temperature_for_ess)
 from ncedf.robot import RobotSpec
 from ncedf.shapes import make_shape
 from scenarios.presets import mppi_config
@@ -41,7 +42,7 @@ def _run(config, points):
     shape = make_shape("exact", SPEC)
     mask = np.ones(len(points), bool)
     nominal = jnp.broadcast_to(jnp.asarray(CROSSING), (config.horizon, 1, 3))
-    state = MPPIState(nominal, jax.random.PRNGKey(0))
+    state = init_state(SPEC, config, jax.random.PRNGKey(0))._replace(nominal=nominal)
     return mppi_step(SPEC, config, shape, state, jnp.asarray(ARC), jnp.asarray(GOAL), jnp.asarray(points),
                      jnp.asarray(mask))
 
@@ -86,6 +87,29 @@ def test_step_clearance_is_the_min_over_the_substeps():
         assert value == pytest.approx(truth, abs=1e-5)
 
 
+def test_a_wall_moving_into_the_robot_is_seen_with_predicted_motion():
+    # The wall 0.3 m further away and coming at 0.3 m/s: out of reach if static, crossing the
+    # tip's path during the step if it moves on; the second step sees its velocity.
+    config = dataclasses.replace(WALL_CONFIG, safety_check=True)
+    wall0 = _wall() + np.array([-0.3, 0.0, 0.0], np.float32)
+    wall1 = _wall()  # where it is one step (dt = 1 s) later
+    velocity = cloud_velocity(jnp.asarray(wall1), jnp.ones(len(wall1), bool), jnp.asarray(wall0),
+                              jnp.ones(len(wall0), bool), 1.0)
+    np.testing.assert_allclose(velocity, np.tile([[0.3, 0.0, 0.0]], (len(wall0), 1)), atol=1e-6)
+    shape = make_shape("exact", SPEC)
+    mask = jnp.ones(len(wall1), bool)
+    ahead = jnp.asarray(wall1) + velocity  # where it is at the end of the next step
+    static = step_clearance(shape, jnp.asarray(ARC), jnp.asarray(CROSSING)[None], jnp.asarray(wall1), mask, 1.0, 4)
+    moving = step_clearance(shape, jnp.asarray(ARC), jnp.asarray(CROSSING)[None], jnp.asarray(wall1), mask, 1.0, 4,
+                            velocity)
+    truth = min(float(jnp.min(robot_signed_distance(jnp.asarray(wall1) + s * velocity, jnp.asarray(ARC) + s * CROSSING,
+                                                    SPEC))) for s in (0.25, 0.5, 0.75, 1.0))
+    assert float(moving[0]) == pytest.approx(truth, abs=1e-5)
+    assert float(moving[0]) != pytest.approx(float(static[0]), abs=1e-3)
+    assert float(jnp.min(robot_signed_distance(ahead, jnp.asarray(ARC), SPEC))) < float(
+        jnp.min(robot_signed_distance(jnp.asarray(wall1), jnp.asarray(ARC), SPEC)))
+
+
 def test_release_controls_zero_sum_and_bounds():
     free = 0.4 * jax.random.normal(jax.random.PRNGKey(0), (1000, 3, 2))
     u = np.asarray(release_controls(free, 0.3))
@@ -127,7 +151,8 @@ def test_temperature_for_ess_is_the_smallest_grid_value_that_reaches_the_target(
 
 def test_new_options_are_validated():
     for field, value in [("sampling", "free"), ("noise_smoothing", 1.0), ("target_ess", 0.0), ("target_ess", 2.0),
-                         ("safety_check", 1), ("check_substeps", 0), ("check_margin", -0.1)]:
+                         ("safety_check", 1), ("check_substeps", 0), ("check_margin", -0.1),
+                         ("predict_motion", "yes")]:
         with pytest.raises(ValueError, match=field):
             MPPIConfig(**{field: value})
 
@@ -143,3 +168,19 @@ def test_paper_and_release_presets_are_unchanged():
     for config in (old_release, MPPIConfig()):
         assert (config.sampling, config.noise_smoothing, config.target_ess, config.safety_check) == (
             "project", 0.0, None, False)
+        assert not config.predict_motion
+
+
+@pytest.mark.parametrize("broad_phase", [True, False])
+def test_rollout_distances_per_horizon_step_clouds(broad_phase):
+    spec = RobotSpec(2)
+    shape = make_shape("exact", spec)
+    config = MPPIConfig(samples=8, horizon=3, max_points=64, broad_phase=broad_phase)
+    rng = np.random.default_rng(0)
+    arcs = jnp.asarray(2.0 + rng.uniform(-0.2, 0.2, (8, 3, 2, 3)), jnp.float32)
+    clouds = jnp.asarray(rng.uniform([-2, -2, 0], [2, 2, 4], (3, 64, 3)), jnp.float32)
+    mask = jnp.arange(64) < 50
+    got = np.asarray(rollout_min_distances(config, shape, arcs, clouds, mask))
+    for k in range(3):  # horizon step k against cloud k alone
+        np.testing.assert_allclose(got[:, k], np.asarray(
+            rollout_min_distances(config, shape, arcs[:, k:k + 1], clouds[k], mask))[:, 0], atol=1e-6)
