@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 import shutil
 import subprocess
 import sys
@@ -45,8 +46,20 @@ def cluttered_settings(seed: int) -> EpisodeSettings:
                            max_steps=4)
 
 
+@pytest.fixture(scope="module", autouse=True)
+def cache(tmp_path_factory):
+    """Datasets and the analysis cache in a temporary folder (the scripts inherit it)."""
+    previous = os.environ.get("NCEDF_CACHE")
+    os.environ["NCEDF_CACHE"] = str(tmp_path_factory.mktemp("cache"))
+    yield
+    if previous is None:
+        del os.environ["NCEDF_CACHE"]
+    else:
+        os.environ["NCEDF_CACHE"] = previous
+
+
 @pytest.fixture(scope="module")
-def folder(tmp_path_factory):
+def folder(tmp_path_factory, cache):
     """Recordings and what their runs returned: (folder, {stem: EpisodeResult}, datasets)."""
     runs = tmp_path_factory.mktemp("runs")
     results = {}
@@ -165,6 +178,7 @@ def test_corrupt_and_unclosed_recordings_are_listed_and_left_out(folder, tmp_pat
     runs, _, _ = folder
     copy = tmp_path / "runs"
     shutil.copytree(runs, copy)
+    assert script("make_tables.py", copy, "--out", tmp_path / "t").returncode == 0  # fills the cache
     (copy / "spheres" / "garbage.mcap").write_bytes(b"not a recording at all")
     first = sorted((copy / "spheres").glob("spheres_*.mcap"))[0]
     data = first.read_bytes()
