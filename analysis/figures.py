@@ -21,7 +21,7 @@ from analysis import paper  # noqa: E402
 from analysis.load import Recordings  # noqa: E402
 from analysis.scene import snapshots  # noqa: E402
 from analysis.stats import mean_std, wilson  # noqa: E402
-from recorder import RecorderError, load_run  # noqa: E402
+from recorder import load_run  # noqa: E402
 
 COLUMN_IN = 3.5
 #: The fixed axis of each timing figure (scenarios.reproduce's timing experiment): 4 links, 500 points.
@@ -239,7 +239,8 @@ def success_rates(rec: Recordings):
         n, k = len(g), int((g["outcome"] == "success").sum())
         low, high = wilson(k, n)
         rows.append({"shape": shape, "controller": controller, "quick": quick, "episodes": n, "successes": k,
-                     "success": k / n, "low": low, "high": high, "paper_success": paper.TABLE3.get(shape, (np.nan,))[0]})
+                     "success": k / n, "low": low, "high": high,
+                     "paper_success": paper.TABLE3.get(shape, (np.nan,))[0]})
     df = pd.DataFrame(rows)
     fig, ax = plt.subplots(figsize=(COLUMN_IN, 1.2 + 0.2 * len(df)), layout="constrained")
     y = np.arange(len(df))
@@ -268,5 +269,3 @@ def builders(rec: Recordings, model_path: str | None):
         ("success_rates", lambda: success_rates(rec)),
     ]
 
-
-__all__ = ["builders", "RecorderError"]

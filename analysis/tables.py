@@ -157,8 +157,10 @@ def table3(rec: Recordings) -> Table | str:
         data.append({"shape": shape, "controller": controller, "samples": int(samples), "horizon": int(horizon),
                      "max_steps": int(max_steps), "quick": bool(quick), **r, "mppi_step_s_mean": t_mean,
                      "mppi_step_s_std": t_std, "mppi_steps": t_n, "paper_success": ref[0], "paper_collision": ref[1],
-                     "paper_stuck": ref[2], "paper_mppi_step_s": ref[3], "paper_environments": paper.TABLE3_ENVIRONMENTS})
-        rows.append([f"{shape}{_quick_tag(quick)}", f"{controller} ({int(samples)}, H {int(horizon)})", str(r["episodes"]),
+                     "paper_stuck": ref[2], "paper_mppi_step_s": ref[3],
+                     "paper_environments": paper.TABLE3_ENVIRONMENTS})
+        rows.append([f"{shape}{_quick_tag(quick)}", f"{controller} ({int(samples)}, H {int(horizon)})",
+                     str(r["episodes"]),
                      fmt_rate(r["success"], r["success_low"], r["success_high"]), fmt(ref[0]),
                      fmt_rate(r["collision"], r["collision_low"], r["collision_high"]), fmt(ref[1]),
                      fmt_rate(r["stuck"], r["stuck_low"], r["stuck_high"]), fmt(ref[2]),

@@ -148,7 +148,8 @@ def write_manifest(where: Path, table: str, budget: Budget, command: str, settin
     """``experiment.mcap``: the experiment's /run metadata (rewritten by every run of it)."""
     from recorder import Recorder
 
-    meta = {"run_id": f"{where.name}/{EXPERIMENT}", "scenario": "experiment", "experiment": table, "quick": budget.quick, "budget": dataclasses.asdict(budget),
+    meta = {"run_id": f"{where.name}/{EXPERIMENT}", "scenario": "experiment", "experiment": table,
+            "quick": budget.quick, "budget": dataclasses.asdict(budget),
             "settings": settings, "command": command, "date": datetime.datetime.now(datetime.UTC).isoformat(),
             "machine": machine()}
     where.mkdir(parents=True, exist_ok=True)
@@ -259,7 +260,8 @@ def train_network(net: Network, where: Path, budget: Budget, data, val, points, 
     spec = RobotSpec(n_links=1)
     model_cfg = ModelConfig(net.layers, net.width, net.encoding)
     cfg = TrainConfig(epochs=budget.epochs, lambda_over=net.lambda_over, seed=seed)
-    meta = {"run_id": f"{where.name}/{net.name}", "scenario": "training", "experiment": where.name.removesuffix("-quick"), "quick": budget.quick,
+    meta = {"run_id": f"{where.name}/{net.name}", "scenario": "training",
+            "experiment": where.name.removesuffix("-quick"), "quick": budget.quick,
             "network": dataclasses.asdict(net), "architecture": dataclasses.asdict(model_cfg),
             "training": dataclasses.asdict(cfg), "dataset": {"hash": data.key, "samples": data.n_samples},
             "validation": {"hash": val.key, "samples": int(val.distances.size)},
@@ -366,7 +368,8 @@ def run_timing(out: Path, budget: Budget, seed: int, command: str) -> int:
         points = timing_points(n_points, seed)
         meta = {"run_id": f"{where.name}/{name[case]}", "scenario": "timing", "quick": budget.quick, "shape": shape,
                 "links": links, "observed_points": n_points, "controller": "paper",
-                "mppi": {"samples": budget.timing_samples, "horizon": budget.timing_horizon}, "model": "shipped default"}
+                "mppi": {"samples": budget.timing_samples, "horizon": budget.timing_horizon},
+                "model": "shipped default"}
         with Recorder(where / name[case], meta, ("mcap",), overwrite=True) as rec:
             for i, ms in enumerate(mppi_step_ms(model, points, budget, seed, shape, links)):
                 rec.log_step(i, float(i), metrics={"solver_ms": ms})
@@ -397,8 +400,9 @@ def parse_args(argv=None):
     p.add_argument("--envs-5000", type=int, help=f"Table III environments for pointcloud:5000 "
                                                  f"(default {Budget.envs_5000})")
     p.add_argument("--seeds", type=int, help=f"Table IV seeds (default {Budget.seeds})")
-    p.add_argument("--timing-repeats", type=int, help=f"timed steps per network or timing case "
-                                                      f"(default {Budget.timing_repeats}, quick {QUICK.timing_repeats})")
+    p.add_argument("--timing-repeats", type=int,
+                   help=f"timed steps per network or timing case (default {Budget.timing_repeats}, "
+                        f"quick {QUICK.timing_repeats})")
     p.add_argument("--workers", type=int, help="sweep worker processes (default: one per core)")
     p.add_argument("--seed", type=int, default=0, help="training seed (default 0)")
     return p.parse_args(argv)
