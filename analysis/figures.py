@@ -122,7 +122,20 @@ def fig4(rec: Recordings):
 
 
 # ---------------------------------------------------------------- Figs. 5-7
-def _draw(ax, snap, title: str) -> None:
+def _bounds(snaps) -> tuple[tuple[float, float], tuple[float, float]]:
+    """x and z limits that hold the scene's boxes, every robot pose and plan shown, with 0.5 m to spare, m."""
+    xs, zs = [-1.0, 7.0], [-1.0, 7.0]
+    for snap in snaps:
+        for line in [*snap.backbone, *([] if snap.plan is None or not len(snap.plan) else [snap.plan])]:
+            xs += [line[:, 0].min(), line[:, 0].max()]
+            zs += [line[:, 2].min(), line[:, 2].max()]
+        for b in snap.boxes:
+            xs += [b[0] - b[3] / 2, b[0] + b[3] / 2]
+            zs += [b[2] - b[5] / 2, b[2] + b[5] / 2]
+    return (min(xs) - 0.5, max(xs) + 0.5), (min(zs) - 0.5, max(zs) + 0.5)
+
+
+def _draw(ax, snap, title: str, limits) -> None:
     """The scene seen from -y (x-z plane): boxes and spheres grey, points light grey, robot black, plan dashed."""
     for b in snap.boxes:
         ax.add_patch(Rectangle((b[0] - b[3] / 2, b[2] - b[5] / 2), b[3], b[5], facecolor="0.85", edgecolor="0.5",
@@ -140,8 +153,8 @@ def _draw(ax, snap, title: str) -> None:
         ax.plot(snap.goal[0], snap.goal[2], marker="*", color="white", markeredgecolor="black", ms=9)
     ax.set_title(title)
     ax.set_aspect("equal")
-    ax.set_xlim(-1.5, 7.0)
-    ax.set_ylim(-1.5, 9.0)
+    ax.set_xlim(*limits[0])
+    ax.set_ylim(*limits[1])
     ax.set_xlabel("x (m)")
 
 
@@ -158,13 +171,15 @@ def snapshot_strip(rec: Recordings, links: int):
     steps = sorted({min(k, last) for k in paper.SNAPSHOT_STEPS.get(links, ())} | {0, last})
     times = dict(zip(full.metrics["step"], full.metrics["sim_time"]))
     snaps = snapshots(run["path"], {k: times[k] for k in steps})
-    fig, axes = plt.subplots(1, len(steps), figsize=(1.2 * len(steps) + 0.4, 2.6), sharey=True,
-                             constrained_layout=True)
+    limits = _bounds(snaps.values())
+    aspect = (limits[1][1] - limits[1][0]) / (limits[0][1] - limits[0][0])
+    fig, axes = plt.subplots(1, len(steps), figsize=(1.3 * len(steps) + 0.4, 1.3 * aspect + 0.9), sharey=True,
+                             layout="constrained")
     reach = run["reach_step"]
     rows = []
     for ax, k in zip(np.atleast_1d(axes), steps):
         label = "reached" if (pd.notna(reach) and k == int(reach)) else ("end" if k == last else "")
-        _draw(ax, snaps[k], f"step {k}" + (f" ({label})" if label else ""))
+        _draw(ax, snaps[k], f"step {k}" + (f" ({label})" if label else ""), limits)
         sn = snaps[k]
         for i, line in enumerate(sn.backbone):
             rows.append(pd.DataFrame({"step": k, "kind": f"backbone_link{i + 1}", "x": line[:, 0], "y": line[:, 1],

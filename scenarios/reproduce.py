@@ -29,9 +29,10 @@ Tables III and IV run through ``scenarios.sweep.run_sweep``. Everything resumes:
 a network or episode whose recording is closed with a final outcome is skipped,
 so the same command finishes an interrupted experiment.
 
-``--quick`` shrinks every experiment (Table I: 2 and 4 layers x width 16 and 32,
-1 epoch on a 20-configuration, 12^3-grid set; 64 MPPI samples, horizon 8, 20
-steps; one environment or seed) so that
+``--quick`` shrinks every experiment (Table I: 2 and 4 layers x width 16, both
+encodings, 1 epoch on a 20-configuration, 12^3-grid set; 64 MPPI samples,
+horizon 8, 10 steps; one environment or seed; timing: 3 representations at 4 / 7
+links and 250 / 1000 points) so that
 ``all --quick`` runs in minutes on a laptop; its numbers only show the pipeline works.
 
 Ctrl-C / SIGTERM: the network being trained is recorded as interrupted (the
@@ -117,7 +118,7 @@ class Budget:
 
 QUICK = Budget(epochs=1, configs=20, grid=12, surface=200, val_configs=10, val_points=512, val_surface=32,
                timing_repeats=3, timing_samples=64, timing_horizon=8, envs=1, envs_5000=1, seeds=1,
-               samples=64, horizon=8, max_steps=20, layers=(2, 4), widths=(16, 32),
+               samples=64, horizon=8, max_steps=10, layers=(2, 4), widths=(16,),
                timing_shapes=("ncedf", "spheres", "pointcloud:1000"), timing_links=(4, 7), timing_points=(250, 1000),
                quick=True)
 

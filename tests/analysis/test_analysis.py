@@ -214,3 +214,15 @@ def test_figures_and_their_data(folder, tmp_path):
     fig3 = pd.read_csv(tmp_path / "fig3_ncedf_slices.csv")
     assert fig3["exact"].min() < 0.02
     assert np.allclose(fig3["difference"], fig3["learned"] - fig3["exact"], atol=1e-5)
+
+
+def test_reproduce_skips_complete_networks_and_timing_cases(folder, capsys):
+    runs, _, _ = folder
+    where = reproduce.folder(runs, "table2", TINY_BUDGET)
+    before = {p: p.stat().st_mtime_ns for p in where.glob("net_*.mcap")}
+    assert len(before) == 2
+    assert reproduce.run_networks("table2", runs, TINY_BUDGET, 0, "test") == 0
+    assert reproduce.run_timing(runs, TINY_BUDGET, 0, "test") == 0
+    err = capsys.readouterr().err
+    assert "2 networks in" in err and "0 to train" in err and "0 to run" in err
+    assert {p: p.stat().st_mtime_ns for p in where.glob("net_*.mcap")} == before
