@@ -291,37 +291,50 @@ def _cpu_count() -> int:
 
 def _run_local(todo: list[EpisodeSettings], out: Path, formats, workers: int, recycle: int,
                cache_dir: str | None, on_done: OnDone) -> int | None:
-    """Run `todo` in `workers` spawned processes; returns the signal that stopped it, or None."""
+    """Run `todo` in `workers` spawned processes; returns the signal that stopped it, or None.
+
+    Workers are recycled by running rounds of ``workers * recycle`` episodes, each in a fresh pool:
+    ``max_tasks_per_child`` deadlocks once a worker reaches its limit (CPython gh-115634, 3.11-3.14).
+    """
+    out.mkdir(parents=True, exist_ok=True)
+    per_round = workers * recycle
+    with _Stop() as stop:
+        for start in range(0, len(todo), per_round):
+            _run_round(todo[start:start + per_round], out, formats, workers, cache_dir, on_done, stop)
+            if stop.signum is not None:
+                break
+    return stop.signum
+
+
+def _run_round(todo: list[EpisodeSettings], out: Path, formats, workers: int, cache_dir: str | None,
+               on_done: OnDone, stop: _Stop) -> None:
+    """One pool of `workers` spawned processes for `todo`, shut down at the end or on `stop`."""
     from scenarios.episode import episode_name
 
     cores = max(1, _cpu_count() // workers)
-    out.mkdir(parents=True, exist_ok=True)
     before = set(multiprocessing.active_children())
     pool = cf.ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
-                                  initializer=_init_local_worker, initargs=(cores, cache_dir),
-                                  max_tasks_per_child=recycle)
-    with _Stop() as stop:
-        futures = {pool.submit(run_one, s, str(out / episode_name(s)), formats): s for s in todo}
-        pending = set(futures)
-        try:
-            while pending and stop.signum is None:
-                done, pending = cf.wait(pending, timeout=POLL_S, return_when=cf.FIRST_COMPLETED)
-                if stop.signum is not None:  # episodes that ended with the signal are sorted out by the caller
-                    break
-                for future in done:
-                    try:
-                        seconds, error = future.result()
-                    except RecordingInterrupted:  # a worker was signalled on its own: run it again later
-                        seconds, error = math.nan, "interrupted by a signal"
-                    except cf.process.BrokenProcessPool:
-                        raise SweepError("a worker process died (killed, or out of memory?)") from None
-                    on_done(futures[future], seconds, error)
-        finally:
-            pool.shutdown(wait=False, cancel_futures=True)
-            if pending:
-                _stop_workers(set(multiprocessing.active_children()) - before)
-            pool.shutdown(wait=True)
-    return stop.signum
+                                  initializer=_init_local_worker, initargs=(cores, cache_dir))
+    futures = {pool.submit(run_one, s, str(out / episode_name(s)), formats): s for s in todo}
+    pending = set(futures)
+    try:
+        while pending and stop.signum is None:
+            done, pending = cf.wait(pending, timeout=POLL_S, return_when=cf.FIRST_COMPLETED)
+            if stop.signum is not None:  # episodes that ended with the signal are sorted out by the caller
+                break
+            for future in done:
+                try:
+                    seconds, error = future.result()
+                except RecordingInterrupted:  # a worker was signalled on its own: run it again later
+                    seconds, error = math.nan, "interrupted by a signal"
+                except cf.process.BrokenProcessPool:
+                    raise SweepError("a worker process died (killed, or out of memory?)") from None
+                on_done(futures[future], seconds, error)
+    finally:
+        pool.shutdown(wait=False, cancel_futures=True)
+        if pending:
+            _stop_workers(set(multiprocessing.active_children()) - before)
+        pool.shutdown(wait=True)
 
 
 def _stop_workers(workers) -> None:

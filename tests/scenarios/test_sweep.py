@@ -250,3 +250,20 @@ def test_sigterm_stops_the_workers_too(tmp_path):
     while any(alive(pid) for pid in started) and time.monotonic() < deadline:
         time.sleep(0.05)
     assert started and not [pid for pid in started if alive(pid)]
+
+
+def test_recycled_workers_finish_the_sweep(swept, tmp_path):
+    """``--recycle 2`` replaces the worker twice in 5 episodes (a pool's max_tasks_per_child hung at the first)."""
+    out = tmp_path / "runs"
+    shutil.copytree(swept[0] / JAX_CACHE, out / JAX_CACHE)
+    argv = [*TINY, "--max-steps", "3", "--envs", "5", "--workers", "1", "--recycle", "2", "--out", str(out)]
+    proc = subprocess.Popen([sys.executable, "-m", "scenarios.sweep", *argv], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        _, stderr = proc.communicate(timeout=240)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.communicate()
+        pytest.fail("the sweep hung after its first worker was recycled")
+    assert proc.returncode == 0, stderr
+    assert all(read_complete(out / episode_name(tiny(e, max_steps=3)), ("mcap",)) for e in range(3))
