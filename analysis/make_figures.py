@@ -18,18 +18,14 @@ from pathlib import Path
 if __package__ in (None, ""):  # run as a script: make the repository importable
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from analysis.cli import EXIT_STATUS, Parser, Stopped, stop_on_signals  # noqa: E402
 from analysis.load import check_folder, load  # noqa: E402
 from analysis.make_tables import report_problems  # noqa: E402
 from recorder import RecorderError  # noqa: E402
 
 
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str):
-        self.exit(2, f"{self.prog}: error: {message}\n")
-
-
 def parse_args(argv=None) -> argparse.Namespace:
-    p = _Parser(prog="python analysis/make_figures.py", description=__doc__.split("\n\n")[0])
+    p = Parser(prog="python analysis/make_figures.py", description=__doc__.split("\n\n")[0])
     p.add_argument("runs", nargs="?", default="runs", help="folder of recordings (default runs/)")
     p.add_argument("--out", default="figures", help="output folder (default figures/)")
     p.add_argument("--model", help="N-CEDF weights for Fig. 3 (default: the shipped model)")
@@ -39,6 +35,15 @@ def parse_args(argv=None) -> argparse.Namespace:
 def main(argv=None) -> int:
     args = parse_args(argv)
     try:
+        with stop_on_signals():
+            return _main(args)
+    except Stopped as exc:
+        print(f"stopped by {exc}: figures already written under {args.out} are kept", file=sys.stderr)
+        return EXIT_STATUS[exc.signum]
+
+
+def _main(args) -> int:
+    try:
         check_folder(args.runs)
         if args.model is not None and not Path(args.model).with_suffix(".msgpack").is_file():
             raise RecorderError(f"model {args.model} not found (expected {Path(args.model).with_suffix('.msgpack')})")
@@ -46,9 +51,6 @@ def main(argv=None) -> int:
     except RecorderError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("interrupted while reading; nothing written", file=sys.stderr)
-        return 130
     import matplotlib.pyplot as plt
 
     from analysis.figures import builders
@@ -57,24 +59,20 @@ def main(argv=None) -> int:
     report_problems(rec)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    try:
-        for name, build in builders(rec, args.model):
-            try:
-                result = build()
-            except RecorderError as exc:
-                print(f"{name}: skipped, {exc}", file=sys.stderr)
-                continue
-            if isinstance(result, str):
-                print(result, file=sys.stderr)
-                continue
-            fig, data = result
-            fig.savefig(out / f"{name}.png")
-            plt.close(fig)
-            data.to_csv(out / f"{name}.csv", index=False, float_format="%.6g")
-            print(f"wrote {out / name}.png and .csv", file=sys.stderr)
-    except KeyboardInterrupt:
-        print(f"interrupted: figures already written under {out} are kept", file=sys.stderr)
-        return 130
+    for name, build in builders(rec, args.model):
+        try:
+            result = build()
+        except RecorderError as exc:
+            print(f"{name}: skipped, {exc}", file=sys.stderr)
+            continue
+        if isinstance(result, str):
+            print(result, file=sys.stderr)
+            continue
+        fig, data = result
+        fig.savefig(out / f"{name}.png")
+        plt.close(fig)
+        data.to_csv(out / f"{name}.csv", index=False, float_format="%.6g")
+        print(f"wrote {out / name}.png and .csv", file=sys.stderr)
     return 0
 
 

@@ -17,18 +17,14 @@ from pathlib import Path
 if __package__ in (None, ""):  # run as a script: make the repository importable
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from analysis.cli import EXIT_STATUS, Parser, Stopped, stop_on_signals  # noqa: E402
 from analysis.load import check_folder, load  # noqa: E402
 from analysis.tables import BUILDERS  # noqa: E402
 from recorder import RecorderError  # noqa: E402
 
 
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str):
-        self.exit(2, f"{self.prog}: error: {message}\n")
-
-
 def parse_args(argv=None) -> argparse.Namespace:
-    p = _Parser(prog="python analysis/make_tables.py", description=__doc__.split("\n\n")[0])
+    p = Parser(prog="python analysis/make_tables.py", description=__doc__.split("\n\n")[0])
     p.add_argument("runs", nargs="?", default="runs", help="folder of recordings (default runs/)")
     p.add_argument("--out", default="tables", help="output folder (default tables/)")
     return p.parse_args(argv)
@@ -44,14 +40,20 @@ def report_problems(rec, stream=sys.stderr) -> None:
 def main(argv=None) -> int:
     args = parse_args(argv)
     try:
+        with stop_on_signals():
+            return _main(args)
+    except Stopped as exc:
+        print(f"stopped by {exc}: tables already written under {args.out} are kept", file=sys.stderr)
+        return EXIT_STATUS[exc.signum]
+
+
+def _main(args) -> int:
+    try:
         check_folder(args.runs)
         rec = load(args.runs)
     except RecorderError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("interrupted while reading; nothing written", file=sys.stderr)
-        return 130
     print(f"read {rec.files} recordings under {args.runs} in {rec.seconds:.2f} s "
           f"({len(rec.runs)} runs used)", file=sys.stderr)
     report_problems(rec)
