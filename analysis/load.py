@@ -6,7 +6,8 @@ of ``recorder.read.load_runs``, with the unreadable, unclosed and unfinished rec
 
 Reading costs 4.6 ms per recording of 21 steps (0.7 MB) and 43 ms per 300-step cluttered
 episode (10 MB), mostly zstd (the metrics share chunks with the meshes): 18 s for 4000 short
-recordings, about 3 min for 4000 full ones (``python analysis/bench_read.py``, 2 shared cores). So ``load`` keeps what it read in a per-user cache (``$NCEDF_CACHE/analysis``, a pickle written by
+recordings, about 3 min for 4000 full ones (``python analysis/bench_read.py``, 2 shared cores).
+So ``load`` keeps what it read in a per-user cache (``$NCEDF_CACHE/analysis``, a pickle written by
 this user) and reuses it while no recording under the folder changed (paths, sizes, modification
 times): ``make_tables`` then ``make_figures`` read the recordings once.
 """
