@@ -7,8 +7,10 @@
 
 A variant is the ``release`` or ``ours`` preset of ``scenarios.presets`` with
 some MPPIConfig fields changed (``VARIANTS``): ``ours`` with one of its changes
-turned off, ``release`` with one turned on, and ``paper`` at ``ours``'s rollouts
-and horizon (the reference of the solver time). Every variant runs the same
+turned off (``ours-X``) or a candidate it leaves out turned on (``ours+X``:
+low-pass noise, predicted obstacle motion), ``release`` with ours's sampling,
+and ``paper`` at ``ours``'s rollouts and horizon (the reference of the solver
+time). Every variant runs the same
 episodes (``scenarios.episode``, no recording): the cluttered scene for each of
 ``--links`` x ``--seeds`` controller seeds, and the dynamic spheres for
 ``--envs`` environments x ``--goals`` (controller seed 0), 4 links. Printed per
@@ -50,10 +52,10 @@ VARIANTS: dict[str, tuple[str, dict]] = {
     "release+sampling": ("release", {"sampling": "release"}),
     "ours": ("ours", {}),
     "ours-sampling": ("ours", {"sampling": "project"}),
-    "ours-check": ("ours", {"safety_check": False}),
     "ours-ess": ("ours", {"target_ess": None}),
-    "ours-smooth": ("ours", {"noise_smoothing": 0.0}),
-    "ours-margin": ("ours", {"safety_margin": 0.05}),
+    "ours-check": ("ours", {"safety_check": False}),
+    "ours+smooth": ("ours", {"noise_smoothing": 0.6}),
+    "ours+motion": ("ours", {"predict_motion": True}),
     "paper": ("paper", {}),
 }
 #: z for a 95% interval.

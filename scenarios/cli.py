@@ -23,7 +23,7 @@ from typing import Callable
 from recorder import RecorderError
 from recorder.recorder import FORMATS, check_writable, output_paths
 from scenarios.episode import Episode, EpisodeResult, EpisodeSettings
-from scenarios.presets import CONTROLLERS, DEFAULT_CONTROLLER, PRESETS
+from scenarios.presets import CONTROLLERS, DEFAULT_CONTROLLER, DEFAULT_REASON, PRESETS
 
 #: Exit status per signal: 128 + its number.
 EXIT_STATUS = {signal.SIGINT: 130, signal.SIGTERM: 143}
@@ -68,8 +68,7 @@ def make_parser(scenario: str, description: str, *, links: int = 4, max_steps: i
     p.add_argument("--model", metavar="PATH", help="N-CEDF weights (.msgpack/.json or their stem) for --shape ncedf "
                                                    "(default: the shipped model)")
     p.add_argument("--controller", choices=CONTROLLERS, default=DEFAULT_CONTROLLER,
-                   help=f"MPPI settings (default {DEFAULT_CONTROLLER}; with the paper's settings the 4-link robot of "
-                        f"the cluttered scene stays 4.5 m short of the goal). {controllers}")
+                   help=f"MPPI settings (default {DEFAULT_REASON}). {controllers}")
     p.add_argument("--samples", type=int, help="MPPI rollouts (default: the controller's)")
     p.add_argument("--horizon", type=int, help="MPPI horizon in steps (default: the controller's)")
     p.add_argument("--max-steps", type=int, help=f"step budget (default {max_steps})")

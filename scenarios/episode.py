@@ -113,7 +113,7 @@ class EpisodeSettings:
         obstacles, port position, goal, observed surface points).
       shape: robot-shape representation for the controller (``ncedf.shapes.make_shape``).
       model: N-CEDF weights (path) for shape ``ncedf``; None = the shipped model.
-      controller: a preset of ``scenarios.presets`` (``paper`` or ``release``).
+      controller: a preset of ``scenarios.presets`` (``paper``, ``release`` or ``ours``).
       samples, horizon: override the preset's rollouts and horizon.
       max_steps: override the scenario's step budget.
       goal: ``fixed`` or ``random`` (scenarios that draw goals).
