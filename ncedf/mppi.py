@@ -34,8 +34,8 @@ Update: ``C~ = (C - min C) / (max C - min C)``, ``w = exp(-C~ / lambda)``,
 executed, the plan is shifted by one step (the last control repeated, or zero).
 With ``target_ess`` set, lambda is not fixed: it is the smallest of a
 logarithmic grid (``TEMPERATURE_GRID``) whose weights have an effective sample
-size ``1 / sum w^2`` of at least ``target_ess * N`` (so the update averages
-many samples instead of collapsing to one).
+size ``1 / sum w^2`` of at least ``target_ess * N`` and ``MIN_ESS`` (so the
+update averages several samples instead of collapsing to one).
 
 Safety check (``safety_check``): before it is executed, the action is checked
 against the current cloud with the representation at ``check_substeps`` states
@@ -82,6 +82,9 @@ from ncedf.shapes import Shape
 SAMPLING = ("project", "release")
 #: Candidate temperatures when ``MPPIConfig.target_ess`` is set (on costs normalised to [0, 1]).
 TEMPERATURE_GRID = tuple(float(x) for x in np.logspace(-4, 1, 64))
+#: Least effective sample size asked for with ``MPPIConfig.target_ess`` (few rollouts would
+#: otherwise execute one noisy sample), samples.
+MIN_ESS = 4.0
 #: Scales of the MPPI action among the safety check's candidates (before "no motion").
 CHECK_SCALES = (0.5, 0.25)
 
@@ -298,7 +301,7 @@ def sample_controls(config: MPPIConfig, nominal: jnp.ndarray, eps: jnp.ndarray) 
 
 def temperature_for_ess(norm: jnp.ndarray, target: float) -> jnp.ndarray:
     """The smallest lambda of ``TEMPERATURE_GRID`` whose weights ``exp(-norm / lambda)`` have an
-    effective sample size >= ``target * N`` (the largest if none has).
+    effective sample size >= ``max(target * N, MIN_ESS)`` (at most N; the largest lambda if none has).
 
     Args:
       norm: (N,) costs normalised to [0, 1].
@@ -306,7 +309,8 @@ def temperature_for_ess(norm: jnp.ndarray, target: float) -> jnp.ndarray:
     grid = jnp.asarray(TEMPERATURE_GRID, norm.dtype)
     w = jnp.exp(-norm[None] / grid[:, None])  # (G, N); the minimum keeps weight 1
     ess = jnp.sum(w, axis=1) ** 2 / jnp.sum(w * w, axis=1)
-    ok = ess >= target * norm.shape[0]
+    n = norm.shape[0]
+    ok = ess >= min(max(target * n, MIN_ESS), n)
     return jnp.where(jnp.any(ok), grid[jnp.argmax(ok)], grid[-1])
 
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from ncedf.geometry import robot_signed_distance
-from ncedf.mppi import (TEMPERATURE_GRID, MPPIConfig, cloud_velocity, init_state, mppi_step, release_controls,
+from ncedf.mppi import (MIN_ESS, TEMPERATURE_GRID, MPPIConfig, cloud_velocity, init_state, mppi_step, release_controls,
                         rollout_min_distances,
                         smoothing_matrix, step_clearance, temperature_for_ess)
 from ncedf.robot import RobotSpec
@@ -134,10 +134,11 @@ def test_smoothing_matrix_gives_the_stationary_low_pass_covariance(beta):
     np.testing.assert_allclose(L @ L.T, beta ** lag, atol=1e-6)  # AR(1): unit variance, correlation beta^lag
 
 
-@pytest.mark.parametrize("target", [0.01, 0.1, 0.5])
-def test_temperature_for_ess_is_the_smallest_grid_value_that_reaches_the_target(target):
-    norm = jax.random.uniform(jax.random.PRNGKey(1), (800,)).at[3].set(0.0).at[7].set(1.0)
+@pytest.mark.parametrize("n, target", [(800, 0.01), (800, 0.1), (800, 0.5), (16, 0.02)])
+def test_temperature_for_ess_is_the_smallest_grid_value_that_reaches_the_target(n, target):
+    norm = jax.random.uniform(jax.random.PRNGKey(1), (n,)).at[3].set(0.0).at[7].set(1.0)
     lam = float(temperature_for_ess(norm, target))
+    wanted = max(target * n, MIN_ESS)  # 16 rollouts: the floor, not 0.32 samples
 
     def ess(value):
         w = np.exp(-np.asarray(norm, np.float64) / value)
@@ -145,8 +146,8 @@ def test_temperature_for_ess_is_the_smallest_grid_value_that_reaches_the_target(
 
     grid = np.asarray(TEMPERATURE_GRID, np.float32)
     i = int(np.argmin(np.abs(grid - lam)))
-    assert ess(grid[i]) >= target * 800 * (1 - 1e-4)
-    assert i == 0 or ess(grid[i - 1]) < target * 800
+    assert ess(grid[i]) >= wanted * (1 - 1e-4)
+    assert i == 0 or ess(grid[i - 1]) < wanted
 
 
 def test_new_options_are_validated():
