@@ -22,6 +22,12 @@ variant's mean solver time to ``paper``'s (same run, same rollouts and horizon).
 Besides the named variants, ``PRESET:FIELD=VALUE[:FIELD=VALUE...]`` is a preset
 with MPPIConfig fields changed (values: numbers, true, false, none or text).
 
+``--timing STEPS`` measures the solver time alone, with less noise from other
+work on the machine: for each group, ``ours`` and ``paper`` (at ours's sizes)
+plan from the scene's start (straight robot, cloud at t = 0) STEPS times each,
+alternating, so both see the same load; printed: median and mean +- std ms per
+step and the ratio of the medians.
+
 One process, episodes in sequence (a configuration compiles once). ``--json``
 also writes every episode's result. Ctrl-C prints the table of the episodes
 finished so far and exits 130.
@@ -39,6 +45,7 @@ import time
 from collections import defaultdict
 from pathlib import Path
 
+import jax
 import numpy as np
 from tqdm import tqdm
 
@@ -134,6 +141,46 @@ def run_one(variant: str, settings: EpisodeSettings):
     return episode.run(out=None)
 
 
+def solver_timing(settings: EpisodeSettings, steps: int) -> dict[str, np.ndarray]:
+    """Solver ms of ``ours`` and ``paper`` (ours's sizes) per step, alternating, from the scene's start."""
+    samples, horizon = PRESETS["ours"].sizes(settings.scenario, settings.links)
+    controllers = {}
+    for name in ("ours", "paper"):
+        episode = Episode(dataclasses.replace(settings, controller=name, samples=samples, horizon=horizon))
+        scene = episode.scene
+        arc = np.asarray(scene.spec.straight_state(), np.float32)
+        points = scene.observer.observe(0.0)
+        state = episode.mppi.init(jax.random.PRNGKey(settings.seed))
+        jax.block_until_ready(episode.mppi.step(state, arc, scene.goal, points))  # compile
+        controllers[name] = (episode.mppi, state, arc, scene.goal, points)
+    times = {name: [] for name in controllers}
+    for _ in range(steps):
+        for name, (mppi, state, arc, goal, points) in controllers.items():
+            start = time.perf_counter()
+            _, state, _ = jax.block_until_ready(mppi.step(state, arc, goal, points))
+            times[name].append((time.perf_counter() - start) * 1e3)
+            controllers[name] = (mppi, state, arc, goal, points)
+    return {name: np.asarray(t) for name, t in times.items()}
+
+
+def timing_table(args) -> str:
+    """``--timing``: one line per group (see the module docstring)."""
+    lines = [f"{'group':<16}{'N':>6}{'H':>4}{'ours median':>13}{'paper median':>14}{'ratio':>7}"
+             f"{'ours mean +- std':>20}{'paper mean +- std':>20}"]
+    seen = set()
+    for group, settings in episodes(args):
+        if group in seen:
+            continue
+        seen.add(group)
+        t = solver_timing(settings, args.timing)
+        samples, horizon = PRESETS["ours"].sizes(settings.scenario, settings.links)
+        o, p = t["ours"], t["paper"]
+        lines.append(f"{group:<16}{samples:>6}{horizon:>4}{np.median(o):>13.1f}{np.median(p):>14.1f}"
+                     f"{np.median(o) / np.median(p):>7.2f}{o.mean():>11.1f} +- {o.std():<5.1f}"
+                     f"{p.mean():>11.1f} +- {p.std():<5.1f}")
+    return "\n".join(lines)
+
+
 def summarise(rows: list[dict]) -> str:
     """The table of results (see the module docstring)."""
     groups = defaultdict(list)
@@ -218,6 +265,8 @@ def main(argv=None) -> int:
     p.add_argument("--max-steps", type=positive, help="override every scenario's step budget")
     p.add_argument("--quick", action="store_true",
                    help="smoke run: 1 seed, 2 environments, ours and paper, 60 steps")
+    p.add_argument("--timing", type=positive, metavar="STEPS",
+                   help="instead of episodes: solver ms of ours vs paper, STEPS alternating steps per group")
     p.add_argument("--json", type=Path, help="also write every episode's result here")
     args = p.parse_args(argv)
     if args.quick:
@@ -227,6 +276,13 @@ def main(argv=None) -> int:
         print("note: without the paper variant there is no solver-time ratio", file=sys.stderr)
 
     signal.signal(signal.SIGTERM, signal.default_int_handler)
+    if args.timing:
+        try:
+            print(timing_table(args))
+        except KeyboardInterrupt:
+            print("interrupted: no timing table", file=sys.stderr)
+            return 130
+        return 0
     rows = []
     todo = [(v, g, s) for v in args.variants for g, s in episodes(args)]
     start = time.perf_counter()
