@@ -45,7 +45,8 @@ the lowest-cost sample's first control, the first control of the sample
 farthest from the cloud after one step, the MPPI action scaled by
 ``CHECK_SCALES``, and no motion. The first candidate whose predicted clearance
 over the step is at least ``safety_margin + check_margin`` is executed; if none
-is, the one with the largest clearance.
+is, the one with the largest clearance. The fallbacks are evaluated only when
+the MPPI action fails the check.
 
 Moving obstacles (``predict_motion``): the controller keeps the previous
 cloud; a point's velocity is its displacement since the previous step over dt
@@ -446,8 +447,15 @@ def mppi_step(spec: RobotSpec, config: MPPIConfig, shape, state: MPPIState, arc,
                                + [s * action for s in CHECK_SCALES] + [jnp.zeros_like(action)])
         if c.limit_action:
             candidates = jax.vmap(lambda a: limit_to_state_bounds(arc, a, c.dt, spec))(candidates)
-        clear = step_clearance(shape, arc, candidates, points, mask, c.dt, c.check_substeps, velocity)
-        ok = clear >= c.safety_margin + c.check_margin
+        needed = c.safety_margin + c.check_margin
+        check = functools.partial(step_clearance, shape, arc, points=points, mask=mask, dt=c.dt,
+                                  substeps=c.check_substeps, velocity=velocity)
+        first = check(actions=candidates[:1])
+        # The fallbacks are evaluated only when the MPPI action fails (lax.cond runs one branch).
+        clear = jax.lax.cond(first[0] >= needed,
+                             lambda: jnp.concatenate([first, jnp.full(len(candidates) - 1, -jnp.inf, first.dtype)]),
+                             lambda: jnp.concatenate([first, check(actions=candidates[1:])]))
+        ok = clear >= needed
         choice = jnp.where(jnp.any(ok), jnp.argmax(ok), jnp.argmax(clear))
         action, clearance = candidates[choice], clear[choice]
     elif c.limit_action:
