@@ -2,7 +2,7 @@
 
 The recorder takes arrays and names only (it imports nothing from `ncedf` or `scenarios`)::
 
-    from recorder import Recorder, load_run, load_runs
+    from recorder import Recorder, load_run, load_runs, load_summaries
 
     with Recorder("out/run-0", run_meta, safety_margin=0.05, goal_tolerance=0.2,
                   viewer=False) as rec:                                     # out/run-0.rrd + out/run-0.mcap
@@ -14,6 +14,7 @@ The recorder takes arrays and names only (it imports nothing from `ncedf` or `sc
                     "min_true_distance": d, "first_collision_step": None})
     run = load_run("out/run-0.mcap")          # Run(meta, metrics, state, outcome, complete)
     runs, steps = load_runs("out")            # one row per run; long per-step metrics
+    table = load_summaries("out")             # one row per run with per-metric count/mean/std/min/max
 
 Training runs and benchmarks use the same `Recorder` with only `metrics` per step.
 
@@ -32,6 +33,7 @@ Where each event goes (names in `recorder.schema`; MCAP topics = Rerun entity pa
 | `/state` | Scalars `/state/arc_lengths` (3M), `/state/theta`, `/state/phi` (M), `/state/ee_position` (3) | JSON `ncedf.State` |
 | `/metrics` | Scalars `/metrics/<name>` | JSON `ncedf.Metrics` (NaN as null) |
 | `/outcome` | recording property `outcome` (JSON text per field) | JSON `ncedf.Outcome`, the last message |
+| summary (on close) | - (`load_summaries` computes it from the rows) | metadata record `summary`: outcome + per-metric statistics (`recorder.summary`), indexed in the summary section |
 | `/log` text | TextLog | foxglove.Log |
 
 Rerun: timelines `step` and `sim_time` (wall clock off), a stored default blueprint (3D view of
@@ -71,9 +73,9 @@ CLI: `python -m recorder.inspect FILE...`; `python -m recorder.synthetic OUT` wr
 """
 
 from recorder.errors import RecorderError, RecordingInterrupted
-from recorder.read import IncompleteRecordingWarning, Run, load_run, load_runs
+from recorder.read import IncompleteRecordingWarning, Run, load_run, load_runs, load_summaries
 from recorder.recorder import Recorder
 from recorder.viewer import ViewerWarning
 
 __all__ = ["Recorder", "RecorderError", "RecordingInterrupted", "IncompleteRecordingWarning", "Run", "ViewerWarning",
-           "load_run", "load_runs"]
+           "load_run", "load_runs", "load_summaries"]

@@ -9,7 +9,9 @@ Topics (= `recorder.schema` names):
   foxglove.SceneUpdate with the goal region (a translucent sphere of that radius) and, for a pose
   goal, an arrow along its z axis ending at the goal; `/log`: foxglove.Log;
 - `/metrics`, `/state`, `/outcome`: JSON with the schemas of `recorder.schema`;
-- run metadata: MCAP metadata record `run` ({key: JSON text}).
+- run metadata: MCAP metadata record `run` ({key: JSON text});
+- on close, MCAP metadata record `summary` (`recorder.summary`): the outcome and per-metric statistics
+  of /metrics, indexed in the summary section so a reader gets it without opening a chunk.
 Every message's log_time is the step's sim_time in ns (no wall clock), so a run is reproducible.
 """
 
@@ -25,7 +27,7 @@ from foxglove import channels as fc
 from foxglove import messages as fm
 from foxglove.mcap import MCAPWriteOptions
 
-from recorder import schema, style
+from recorder import schema, style, summary
 from recorder.events import Step
 from recorder.scene_proto import (ENTITY_LINES, ENTITY_SPHERES, ENTITY_TRIANGLES, LINE_POINTS, TRIANGLE_COLORS,
                                   TRIANGLE_POINTS, encode_colors, encode_indices, encode_points, encode_scene_update)
@@ -193,6 +195,7 @@ class McapSink:
         self._mesh_every = mesh_every
         self._indices: bytes | None = None  # the triangle indices, encoded once
         self._last_ns = 0
+        self._rows: list[dict] = []  # the /metrics rows written, for the summary record
 
     def log_run(self, meta: Mapping[str, Any]) -> None:
         self._writer.write_metadata("run", schema.encode_meta(meta))
@@ -227,6 +230,7 @@ class McapSink:
             self._state.log(json.dumps({**head, **body}).encode(), log_time=ns)
         metrics = {k: schema.json_float(v) for k, v in s.metrics.items()}
         self._metrics.log(json.dumps({**head, **metrics}).encode(), log_time=ns)
+        self._rows.append({"step": s.step, **metrics})
 
     def log_text(self, message: str, level: str, step: int, sim_time_ns: int) -> None:
         msg = fm.Log(timestamp=_timestamp(sim_time_ns), level=_LEVELS.get(level.lower(), fm.LogLevel.Unknown),
@@ -237,6 +241,8 @@ class McapSink:
         self._writer.flush()
 
     def close(self, outcome: Mapping[str, Any]) -> None:
-        """Write the outcome message (at the last step's time) and close the file (summary and footer)."""
+        """Write the outcome message (at the last step's time), the `summary` metadata record and close the
+        file (summary section and footer)."""
         self._outcome.log(json.dumps(dict(outcome)).encode(), log_time=self._last_ns)
+        self._writer.write_metadata(summary.RECORD, summary.encode(outcome, self._rows))
         self._writer.close()

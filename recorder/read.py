@@ -2,7 +2,9 @@
 
 `load_run(path)` gives one `Run`; `load_runs(folder)` gives a per-run table and a long per-step
 metrics table over every recording under a folder (reading the .mcap of a run when both files
-exist: it only parses the small JSON topics).
+exist: it only parses the small JSON topics). `load_summaries(folder)` gives the per-run table with
+per-metric statistics, from the `summary` record of closed .mcap files (footer and summary section
+only: no chunk is opened) and from the rows of every other recording.
 
 Both formats of one run give equal tables: every scalar is float64 in both (Rerun Scalars,
 JSON numbers), `sim_time` is stored to 1 ns in both (Rerun duration timeline, rounded
@@ -20,7 +22,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from recorder import mcap_scan, schema
+from recorder import mcap_scan, schema, summary
 from recorder.errors import RecorderError
 
 _RRD_MAGIC = b"RRF2"
@@ -200,6 +202,30 @@ def find_recordings(folder: str | Path) -> list[Path]:
     return [chosen[k] for k in sorted(chosen)]
 
 
+def _run_row(path: Path, fmt: str, meta: dict[str, Any], outcome: dict[str, Any] | None,
+             complete: bool) -> dict[str, Any]:
+    """One row of the per-run table (nested metadata still nested)."""
+    outcome = outcome or {k: None for k in schema.OUTCOME_FIELDS}
+    return {"run_id": str(meta.get("run_id", path.stem)), "path": str(path), "format": fmt, "complete": complete,
+            **{k: outcome.get(k) for k in schema.OUTCOME_FIELDS}, **{k: v for k, v in meta.items() if k != "run_id"}}
+
+
+def _runs_frame(rows: list[dict[str, Any]]) -> pd.DataFrame:
+    return pd.json_normalize(rows) if rows else pd.DataFrame(columns=list(schema.RUN_TABLE_COLUMNS))
+
+
+def _read_quietly(path: Path) -> tuple[str, _Raw] | None:
+    """`_read_raw` without state and without the unclosed-file warning; None (and a warning naming the
+    file) when it cannot be read."""
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", IncompleteRecordingWarning)
+            return _read_raw(path, with_state=False)
+    except RecorderError as exc:
+        warnings.warn(f"skipped: {exc}", stacklevel=3)
+        return None
+
+
 def load_runs(folder: str | Path) -> tuple[pd.DataFrame, pd.DataFrame]:
     """All runs under `folder` -> (runs, steps).
 
@@ -210,23 +236,52 @@ def load_runs(folder: str | Path) -> tuple[pd.DataFrame, pd.DataFrame]:
     """
     run_rows, step_rows = [], []
     for path in find_recordings(folder):
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", IncompleteRecordingWarning)
-                fmt, raw = _read_raw(path, with_state=False)
-        except RecorderError as exc:
-            warnings.warn(f"skipped: {exc}", stacklevel=2)
+        read = _read_quietly(path)
+        if read is None:
             continue
-        run_id = str(raw.meta.get("run_id", path.stem))
-        outcome = raw.outcome or {k: None for k in schema.OUTCOME_FIELDS}
-        meta = {k: v for k, v in raw.meta.items() if k != "run_id"}
-        run_rows.append({"run_id": run_id, "path": str(path), "format": fmt, "complete": raw.complete,
-                         **{k: outcome.get(k) for k in schema.OUTCOME_FIELDS}, **meta})
-        for row in raw.metrics:
-            row["run_id"] = run_id
+        fmt, raw = read
+        row = _run_row(path, fmt, raw.meta, raw.outcome, raw.complete)
+        run_rows.append(row)
+        for metrics in raw.metrics:
+            metrics["run_id"] = row["run_id"]
         step_rows.extend(raw.metrics)
-    runs = pd.json_normalize(run_rows) if run_rows else pd.DataFrame(columns=list(schema.RUN_TABLE_COLUMNS))
     names = set().union(*step_rows) - {"run_id"} if step_rows else set()
     steps = pd.DataFrame.from_records(step_rows, columns=["run_id", *schema.metric_columns(names)])
     steps = steps.astype({c: "int64" if c == "step" else "float64" for c in steps.columns if c != "run_id"})
-    return runs, steps
+    return _runs_frame(run_rows), steps
+
+
+def _summary_record(path: Path) -> dict[str, Any] | None:
+    """The per-run row from a closed .mcap's `run` and `summary` records; None when it has none."""
+    try:
+        records = mcap_scan.indexed_metadata(path)
+    except Exception:  # not an MCAP or a corrupt tail: the full read decides (and names the problem)
+        return None
+    if not records or summary.RECORD not in records:
+        return None
+    outcome, stats = summary.decode(records[summary.RECORD])
+    return {**_run_row(path, "mcap", schema.decode_meta(records.get("run", {})), outcome, True),
+            **summary.columns(stats)}
+
+
+def load_summaries(folder: str | Path) -> pd.DataFrame:
+    """All runs under `folder` -> one row per run: the columns of `load_runs`' runs table, then
+    `summary.ROWS` (the number of /metrics rows) and, per metric column, `<metric>.<stat>` for each of
+    `summary.STATS` (count of finite values, mean, population std, min, max, last finite value and its step).
+
+    A closed .mcap written with the `summary` record is read from its footer and summary section only;
+    .rrd files, unclosed files and older recordings are read in full and the same statistics computed
+    from their rows (equal values either way). Unreadable files are skipped with a warning naming them.
+    """
+    rows = []
+    for path in find_recordings(folder):
+        row = _summary_record(path) if path.suffix == ".mcap" else None
+        if row is None:
+            read = _read_quietly(path)
+            if read is None:
+                continue
+            fmt, raw = read
+            row = {**_run_row(path, fmt, raw.meta, raw.outcome, raw.complete),
+                   **summary.columns(summary.summarize(raw.metrics))}
+        rows.append(row)
+    return _runs_frame(rows)
