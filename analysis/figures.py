@@ -18,9 +18,9 @@ import pandas as pd  # noqa: E402
 from matplotlib.patches import Circle, Rectangle  # noqa: E402
 
 from analysis import paper  # noqa: E402
-from analysis.load import Recordings  # noqa: E402
+from analysis.load import Recordings, pooled  # noqa: E402
 from analysis.scene import snapshots  # noqa: E402
-from analysis.stats import mean_std, wilson  # noqa: E402
+from analysis.stats import wilson  # noqa: E402
 from recorder import load_run  # noqa: E402
 
 COLUMN_IN = 3.5
@@ -102,7 +102,7 @@ def fig4(rec: Recordings):
     run = _pick(rec.scenario("spheres"))
     if run is None:
         return "fig4: skipped, no dynamic-sphere recordings (python -m scenarios.reproduce table3 --out RUNS)"
-    s = rec.steps[rec.steps["run_id"] == run["run_id"]].sort_values("step")
+    s = load_run(run["path"]).metrics
     margin = float(run["mppi.safety_margin"]) - float(run.get("world.margin_extra", 0.0) or 0.0)
     fig, ax = plt.subplots(figsize=(COLUMN_IN, 2.4), constrained_layout=True)
     ax.plot(s["sim_time"], s["goal_distance"], label="end effector to goal", **STYLES[0], markevery=10, ms=3)
@@ -213,8 +213,8 @@ def _timing_plot(rec: Recordings, axis: str, label: str, fixed: str, value: int)
     for i, ((shape, quick, samples, horizon), g) in enumerate(groups):
         stats = []
         for x, gg in g.groupby(axis):
-            steps = rec.steps[rec.steps["run_id"].isin(set(gg["run_id"]))]
-            stats.append((x, *mean_std(steps["solver_ms"] / 1e3)))
+            mean, std, n = pooled(gg, "solver_ms")
+            stats.append((x, mean / 1e3, std / 1e3, n))
         x, m, sd, n = (np.array(v) for v in zip(*stats))
         ax.errorbar(x, m, yerr=sd, capsize=2, ms=4, **STYLES[i % len(STYLES)],
                     label=f"{shape} ({int(samples)} samples, H {int(horizon)})" + (" quick" if quick else ""))

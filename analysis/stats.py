@@ -1,4 +1,5 @@
-"""Small statistics for the tables: Wilson score intervals for rates, mean and std of times."""
+"""Small statistics for the tables: Wilson score intervals for rates, mean and std of times (also pooled
+from per-run counts, means and stds)."""
 
 from __future__ import annotations
 
@@ -27,3 +28,20 @@ def mean_std(values) -> tuple[float, float, int]:
     if not v.size:
         return math.nan, math.nan, 0
     return float(v.mean()), float(v.std()), int(v.size)
+
+
+def pooled_mean_std(counts, means, stds) -> tuple[float, float, int]:
+    """Mean, population std and count of the union of groups given each group's count, mean and
+    population std (groups with count 0 or NaN count are ignored); NaNs when nothing is left.
+
+    Exact: N = sum n_i, mean = sum n_i m_i / N, var = sum n_i (s_i^2 + (m_i - mean)^2) / N.
+    """
+    n = np.nan_to_num(np.asarray(counts, dtype=np.float64))
+    keep = n > 0
+    n, m, s = n[keep], np.asarray(means, dtype=np.float64)[keep], np.asarray(stds, dtype=np.float64)[keep]
+    total = n.sum()
+    if not total:
+        return math.nan, math.nan, 0
+    mean = float((n * m).sum() / total)
+    var = float((n * (s * s + (m - mean) ** 2)).sum() / total)
+    return mean, math.sqrt(var), int(total)

@@ -12,7 +12,7 @@ import numpy as np
 import pandas as pd
 
 from analysis import paper
-from analysis.load import Recordings, hardware
+from analysis.load import Recordings, hardware, pooled
 from analysis.report import Table, fmt, fmt_pm, fmt_rate
 from analysis.stats import mean_std, wilson
 
@@ -47,33 +47,32 @@ def _rates(outcomes: pd.Series) -> dict:
     return out
 
 
-def _solver(rec: Recordings, run_ids) -> tuple[float, float, int]:
+def _solver(runs: pd.DataFrame) -> tuple[float, float, int]:
     """Mean and std of the MPPI step time over every step of these runs, s."""
-    s = rec.steps[rec.steps["run_id"].isin(set(run_ids))]
-    return mean_std(_col(s, "solver_ms") / 1e3)
+    mean, std, n = pooled(runs, "solver_ms")
+    return mean / 1e3, std / 1e3, n
 
 
 # ---------------------------------------------------------------- Tables I and II
 def _networks(rec: Recordings, experiment: str) -> pd.DataFrame:
-    """One row per recorded network of ``experiment``: its final validation metrics and timings."""
+    """One row per recorded network of ``experiment``: its validation metrics at the last validated epoch
+    (each metric's last finite value) and timings."""
     runs = rec.scenario("training")
     if runs.empty:
         return runs
     runs = runs[_col(runs, "experiment", "") == experiment]
     rows = []
-    for _, run in runs.iterrows():
-        s = rec.steps[rec.steps["run_id"] == run["run_id"]]
-        trained = s[_col(s, "mae").notna()]
-        if trained.empty:
+    for i, run in runs.iterrows():
+        if not run.get("mae.count", 0) > 0:  # never validated
             continue
-        last = trained.sort_values("step").iloc[-1]
-        inf_mean, inf_std, inf_n = mean_std(_col(s, "inference_ms"))
-        mppi_mean, mppi_std, mppi_n = mean_std(_col(s, "mppi_step_ms"))
+        inf_mean, inf_std, inf_n = pooled(runs.loc[[i]], "inference_ms")
+        mppi_mean, mppi_std, mppi_n = pooled(runs.loc[[i]], "mppi_step_ms")
         rows.append({
             "encoding": run["architecture.encoding"], "layers": int(run["architecture.layers"]),
             "width": int(run["architecture.width"]), "lambda_over": float(run["training.lambda_over"]),
-            "quick": bool(run["quick"]), "epochs": int(last["step"]), "folder": run["folder"],
-            "mae": last["mae"], "rmse": last["rmse"], "moe": last["moe"], "over_p999": last["over_p999"],
+            "quick": bool(run["quick"]), "epochs": int(run["mae.last_step"]), "folder": run["folder"],
+            "mae": run["mae.last"], "rmse": run["rmse.last"], "moe": run["moe.last"],
+            "over_p999": run["over_p999.last"],
             "inference_ms_mean": inf_mean, "inference_ms_std": inf_std,
             "mppi_step_ms_mean": mppi_mean, "mppi_step_ms_std": mppi_std, "timing_repeats": mppi_n,
             "mppi_samples": int(run["timing.mppi_samples"]), "mppi_horizon": int(run["timing.mppi_horizon"]),
@@ -152,7 +151,7 @@ def table3(rec: Recordings) -> Table | str:
     groups.sort(key=lambda g: (g[0][5], order.get(g[0][0], 99), g[0][0], *map(str, g[0][1:5])))
     for (shape, controller, samples, horizon, max_steps, quick), g in groups:
         r = _rates(g["outcome"])
-        t_mean, t_std, t_n = _solver(rec, g["run_id"])
+        t_mean, t_std, t_n = _solver(g)
         ref = paper.TABLE3.get(shape, (np.nan,) * 4)
         data.append({"shape": shape, "controller": controller, "samples": int(samples), "horizon": int(horizon),
                      "max_steps": int(max_steps), "quick": bool(quick), **r, "mppi_step_s_mean": t_mean,
@@ -186,7 +185,7 @@ def table4(rec: Recordings) -> Table | str:
     groups.sort(key=lambda g: (g[0][6], g[0][0], *map(str, g[0][1:6])))
     for (links, shape, controller, samples, horizon, max_steps, quick), g in groups:
         r = _rates(g["outcome"])
-        t_mean, t_std, t_n = _solver(rec, g["run_id"])
+        t_mean, t_std, t_n = _solver(g)
         reached = g.loc[g["outcome"] == "success", "reach_step"]
         reach_mean, reach_std, reach_n = mean_std(reached)
         ref = paper.TABLE4.get(int(links), (np.nan,) * 3)

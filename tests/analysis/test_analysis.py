@@ -48,7 +48,7 @@ def cluttered_settings(seed: int) -> EpisodeSettings:
 
 @pytest.fixture(scope="module", autouse=True)
 def cache(tmp_path_factory):
-    """Datasets and the analysis cache in a temporary folder (the scripts inherit it)."""
+    """Datasets in a temporary cache folder (the scripts inherit it)."""
     previous = os.environ.get("NCEDF_CACHE")
     os.environ["NCEDF_CACHE"] = str(tmp_path_factory.mktemp("cache"))
     yield
@@ -178,7 +178,7 @@ def test_corrupt_and_unclosed_recordings_are_listed_and_left_out(folder, tmp_pat
     runs, _, _ = folder
     copy = tmp_path / "runs"
     shutil.copytree(runs, copy)
-    assert script("make_tables.py", copy, "--out", tmp_path / "t").returncode == 0  # fills the cache
+    assert script("make_tables.py", copy, "--out", tmp_path / "t").returncode == 0  # reads cleanly first
     (copy / "spheres" / "garbage.mcap").write_bytes(b"not a recording at all")
     first = sorted((copy / "spheres").glob("spheres_*.mcap"))[0]
     data = first.read_bytes()
