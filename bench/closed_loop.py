@@ -41,6 +41,13 @@ judge; ``--seeds 3 --envs 10``, spheres with the fixed goal):
     without the safety check the same episodes as ours (the check never
     changed an outcome here); low-pass noise (beta 0.6) 0/2 at L4; predicted
     obstacle motion on spheres: the same 9/10 with 25% more solver time.
+  other seeds (``--variants ours --seed0 3 --seeds 2 --goals random``): L4 1/2
+    (1 stuck 1.4 m short), L5 1/2 and 1 collision (seed 3, step 22: the robot
+    slides between the sparse cloud's points, predicted clearance 0.37 m,
+    exact -0.003 m), L7 2/2; spheres with random goals 10/10.
+    ``ours:check_margin=0.5`` avoids that collision (L5 seed 3 reached at step
+    48) and keeps L5 3/3, L7 3/3 on seeds 0-2, but leaves L4 0/3 (stuck
+    1.5-1.6 m short), so ``ours`` keeps check_margin 0.
   ``--timing 30``: solver ms per step, median, ours / paper at the same N and
     H: L4 64.8 / 62.8 (1.03), L5 147.8 / 136.3 (1.08), L7 47.8 / 47.9 (1.00),
     spheres 87.4 / 85.1 (1.03); 1.07-1.28 before the fallbacks of the safety
