@@ -246,23 +246,26 @@ def success_rates(rec: Recordings):
     runs = rec.scenario("spheres")
     if runs.empty:
         return "success rates: skipped, no dynamic-sphere recordings (python -m scenarios.reproduce table3 --out RUNS)"
-    groups = list(runs.groupby(["shape", "controller", "quick"]))
+    runs = runs.assign(goal=runs["settings.goal"].fillna("fixed") if "settings.goal" in runs else "fixed")
+    groups = list(runs.groupby(["shape", "controller", "goal", "quick"]))
     order = {s: i for i, s in enumerate(paper.TABLE3)}
-    groups.sort(key=lambda g: (order.get(g[0][0], 99), g[0][1]))
+    groups.sort(key=lambda g: (order.get(g[0][0], 99), g[0][1], g[0][2]))
     rows = []
-    for (shape, controller, quick), g in groups:
+    for (shape, controller, goal, quick), g in groups:
         n, k = len(g), int((g["outcome"] == "success").sum())
         low, high = wilson(k, n)
-        rows.append({"shape": shape, "controller": controller, "quick": quick, "episodes": n, "successes": k,
+        rows.append({"shape": shape, "controller": controller, "goal": goal, "quick": quick, "episodes": n,
+                     "successes": k,
                      "success": k / n, "low": low, "high": high,
                      "paper_success": paper.TABLE3.get(shape, (np.nan,))[0]})
     df = pd.DataFrame(rows)
     fig, ax = plt.subplots(figsize=(COLUMN_IN, 1.2 + 0.2 * len(df)), layout="constrained")
     y = np.arange(len(df))
     ax.errorbar(df["success"], y, xerr=[df["success"] - df["low"], df["high"] - df["success"]], fmt="o",
-                color="black", capsize=2, ms=4, label="ours, Wilson 95% interval")
+                color="black", capsize=2, ms=4, label="measured here, Wilson 95% interval")
     ax.plot(df["paper_success"], y, "x", color="0.45", ms=6, label="paper (1000 environments)")
-    ax.set_yticks(y, [f"{r.shape}, {r.controller}" + (" (quick)" if r.quick else "") for r in df.itertuples()])
+    ax.set_yticks(y, [f"{r.shape}, {r.controller}" + ("" if r.goal == "fixed" else f", {r.goal} goal")
+                      + (" (quick)" if r.quick else "") for r in df.itertuples()])
     counts = sorted(set(df["episodes"]))
     ax.set_title(f"dynamic spheres, environments per row: {'/'.join(map(str, counts))}")
     ax.set_xlabel("success rate")

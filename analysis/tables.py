@@ -147,18 +147,20 @@ def table3(rec: Recordings) -> Table | str:
         return _missing("table3", "dynamic-sphere episode")
     rows, data = [], []
     order = {s: i for i, s in enumerate(paper.TABLE3)}
-    groups = _groups(runs, ("shape", *_EPISODE_KEYS))
-    groups.sort(key=lambda g: (g[0][5], order.get(g[0][0], 99), g[0][0], *map(str, g[0][1:5])))
-    for (shape, controller, samples, horizon, max_steps, quick), g in groups:
+    runs = runs.assign(goal=runs["settings.goal"].fillna("fixed") if "settings.goal" in runs else "fixed")
+    groups = _groups(runs, ("goal", "shape", *_EPISODE_KEYS))
+    groups.sort(key=lambda g: (g[0][6], g[0][0], order.get(g[0][1], 99), g[0][1], *map(str, g[0][2:6])))
+    for (goal, shape, controller, samples, horizon, max_steps, quick), g in groups:
         r = _rates(g["outcome"])
         t_mean, t_std, t_n = _solver(g)
         ref = paper.TABLE3.get(shape, (np.nan,) * 4)
-        data.append({"shape": shape, "controller": controller, "samples": int(samples), "horizon": int(horizon),
+        data.append({"shape": shape, "goal": goal, "controller": controller, "samples": int(samples),
+                     "horizon": int(horizon),
                      "max_steps": int(max_steps), "quick": bool(quick), **r, "mppi_step_s_mean": t_mean,
                      "mppi_step_s_std": t_std, "mppi_steps": t_n, "paper_success": ref[0], "paper_collision": ref[1],
                      "paper_stuck": ref[2], "paper_mppi_step_s": ref[3],
                      "paper_environments": paper.TABLE3_ENVIRONMENTS})
-        rows.append([f"{shape}{_quick_tag(quick)}", f"{controller} ({int(samples)}, H {int(horizon)})",
+        rows.append([f"{shape}{_quick_tag(quick)}", goal, f"{controller} ({int(samples)}, H {int(horizon)})",
                      str(r["episodes"]),
                      fmt_rate(r["success"], r["success_low"], r["success_high"]), fmt(ref[0]),
                      fmt_rate(r["collision"], r["collision_low"], r["collision_high"]), fmt(ref[1]),
@@ -171,7 +173,7 @@ def table3(rec: Recordings) -> Table | str:
              "mean ± std over every step of those episodes, s.", JUDGE_NOTE]
     if df["quick"].any():
         notes.append(QUICK_NOTE)
-    header = ["representation", "controller (samples, H)", "environments", "success [95% CI]", "paper",
+    header = ["representation", "goal", "controller (samples, H)", "environments", "success [95% CI]", "paper",
               "collision [95% CI]", "paper", "stuck [95% CI]", "paper", "MPPI step (s)", "paper (s)"]
     return Table("table3", "Table III: robot-shape representations among dynamic spheres", header, rows, notes, df)
 
