@@ -29,20 +29,26 @@ ROWS = (
 )
 
 
+def inference_times_ms(model, points, arc, repeats: int) -> list[float]:
+    """Wall times (ms) of ``repeats`` calls of the jitted whole-robot distance of one configuration
+    ``arc`` (M, 3) to ``points`` (P, 3), after one call that compiles."""
+    fn = jax.jit(model.robot_distance)
+    fn(points, arc).block_until_ready()
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn(points, arc).block_until_ready()
+        times.append(1e3 * (time.perf_counter() - start))
+    return times
+
+
 def inference_ms(model, links: int = 4, points: int = 500, repeats: int = 200, seed: int = 0) -> float:
     """Median wall time (ms) of ``robot_distance`` for one configuration."""
     spec = RobotSpec(links, model.spec.length, model.spec.radius, model.spec.l_min, model.spec.l_max)
     k_arc, k_pts = jax.random.split(jax.random.PRNGKey(seed))
     arc = sample_arc_lengths(k_arc, spec, (links,))
     pts = jax.random.uniform(k_pts, (points, 3), minval=-4.0, maxval=8.0)
-    fn = jax.jit(model.robot_distance)
-    fn(pts, arc).block_until_ready()
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn(pts, arc).block_until_ready()
-        times.append(time.perf_counter() - start)
-    return 1e3 * float(np.median(times))
+    return float(np.median(inference_times_ms(model, pts, arc, repeats)))
 
 
 def main(argv=None) -> int:

@@ -237,18 +237,12 @@ def inference_times_ms(model, points, repeats: int, seed: int = 0) -> list[float
     """Wall times (ms) of the whole-robot distance of one 4-link configuration to ``points``."""
     import jax
 
+    from ncedf import evaluate
     from ncedf.robot import RobotSpec, sample_arc_lengths
 
     spec = RobotSpec(TIMING_LINKS, model.spec.length, model.spec.radius, model.spec.l_min, model.spec.l_max)
     arc = sample_arc_lengths(jax.random.PRNGKey(seed), spec, (TIMING_LINKS,))
-    fn = jax.jit(model.robot_distance)
-    fn(points, arc).block_until_ready()
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn(points, arc).block_until_ready()
-        times.append(1e3 * (time.perf_counter() - start))
-    return times
+    return evaluate.inference_times_ms(model, points, arc, repeats)
 
 
 def train_network(net: Network, where: Path, budget: Budget, data, val, points, seed: int) -> None:
