@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import signal
+import sys
 
 #: Exit status per signal: 128 + its number.
 EXIT_STATUS = {signal.SIGINT: 130, signal.SIGTERM: 143}
@@ -39,3 +40,14 @@ def stop_on_signals():
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+
+
+def run_until_stopped(body, args, kept: str) -> int:
+    """``body(args)``; on SIGINT or SIGTERM one line saying that the ``kept`` already written under
+    ``args.out`` are kept, and the signal's exit status."""
+    try:
+        with stop_on_signals():
+            return body(args)
+    except Stopped as exc:
+        print(f"stopped by {exc}: {kept} already written under {args.out} are kept", file=sys.stderr)
+        return EXIT_STATUS[exc.signum]

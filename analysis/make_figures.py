@@ -18,7 +18,7 @@ from pathlib import Path
 if __package__ in (None, ""):  # run as a script: make the repository importable
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from analysis.cli import EXIT_STATUS, Parser, Stopped, stop_on_signals  # noqa: E402
+from analysis.cli import Parser, run_until_stopped  # noqa: E402
 from analysis.load import check_folder, load  # noqa: E402
 from analysis.make_tables import report_problems  # noqa: E402
 from recorder import RecorderError  # noqa: E402
@@ -33,13 +33,7 @@ def parse_args(argv=None) -> argparse.Namespace:
 
 
 def main(argv=None) -> int:
-    args = parse_args(argv)
-    try:
-        with stop_on_signals():
-            return _main(args)
-    except Stopped as exc:
-        print(f"stopped by {exc}: figures already written under {args.out} are kept", file=sys.stderr)
-        return EXIT_STATUS[exc.signum]
+    return run_until_stopped(_main, parse_args(argv), "figures")
 
 
 def _main(args) -> int:
