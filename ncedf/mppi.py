@@ -46,7 +46,14 @@ farthest from the cloud after one step, the MPPI action scaled by
 ``CHECK_SCALES``, and no motion. The first candidate whose predicted clearance
 over the step is at least ``safety_margin + check_margin`` is executed; if none
 is, the one with the largest clearance. The fallbacks are evaluated only when
-the MPPI action fails the check.
+the MPPI action fails the check. Each candidate's clearance comes from the
+broad phase (or brute force) on that candidate's own states.
+
+Surface model (``fill_edge`` > 0): rollouts and the safety check score the
+observed cloud together with points filled in between neighbours up to
+``fill_edge`` apart (``ncedf.cloud``), so that the robot does not slide into a
+sparsely sampled surface between its points; ``MPPIInfo.current_min_distance``
+stays the distance to the observed points.
 
 Moving obstacles (``predict_motion``): the controller keeps the previous
 cloud; a point's velocity is its displacement since the previous step over dt
@@ -76,6 +83,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ncedf.broad_phase import rollout_min_distances_broad, rollout_min_distances_brute
+from ncedf.cloud import fill_weights, interpolate
 from ncedf.robot import RobotSpec, forward_kinematics, validate_state
 from ncedf.shapes import Shape
 
@@ -127,6 +135,9 @@ class MPPIConfig:
         above ``safety_margin`` the check demands, m.
       predict_motion: move the cloud at the velocities estimated from the
         previous step's cloud (module docstring).
+      fill_edge: 0 = score the observed cloud as it is; > 0 = score a surface
+        model of it with the points between neighbours up to this far apart
+        (``ncedf.cloud``), m.
     """
 
     samples: int = 800
@@ -159,6 +170,7 @@ class MPPIConfig:
     check_substeps: int = 4
     check_margin: float = 0.0
     predict_motion: bool = False
+    fill_edge: float = 0.0
 
     def __post_init__(self):
         def num(name):
@@ -179,7 +191,7 @@ class MPPIConfig:
             if num(name) <= 0:
                 raise ValueError(f"MPPIConfig.{name} must be > 0, got {getattr(self, name)}")
         for name in ("w_goal", "w_coll", "w_state", "w_goal_terminal", "w_coll_terminal", "w_perturbation", "safety_margin",
-                     "check_margin"):
+                     "check_margin", "fill_edge"):
             if num(name) < 0:
                 raise ValueError(f"MPPIConfig.{name} must be >= 0, got {getattr(self, name)}")
         if not 0 < num("alpha_u") <= 1:
@@ -216,7 +228,8 @@ class MPPIInfo(NamedTuple):
       current state, m.
     predicted_min_distance: min over x^1..x^H of the selected rollout's
       predicted min distance (selected = the lowest-cost sample), m.
-    current_min_distance: predicted min distance at the current state, m.
+    current_min_distance: predicted min distance from the current state to the
+      observed cloud (without fill points), m.
     cost_goal, cost_coll, cost_state, cost_perturbation: the selected rollout's
       weighted cost terms.
     cost_min, cost_max: the range of total costs over the samples.
@@ -315,11 +328,13 @@ def temperature_for_ess(norm: jnp.ndarray, target: float) -> jnp.ndarray:
     return jnp.where(jnp.any(ok), grid[jnp.argmax(ok)], grid[-1])
 
 
-def step_clearance(shape, arc: jnp.ndarray, actions: jnp.ndarray, points, mask, dt: float,
-                   substeps: int, velocity=None) -> jnp.ndarray:
+def step_clearance(config: MPPIConfig, shape, arc: jnp.ndarray, actions: jnp.ndarray, points, mask,
+                   velocity=None) -> jnp.ndarray:
     """Predicted clearance over one step for each action: min over the states
-    ``arc + (s / S) u dt``, s = 1..S, of the representation's min distance to the cloud
-    (moved by ``(s / S) dt velocity`` when velocities are given).
+    ``arc + (s / S) u dt``, s = 1..S (``config.check_substeps``, ``config.dt``), of the
+    representation's min distance to the cloud (moved by ``(s / S) dt velocity`` when
+    velocities are given), by the broad phase or brute force as the rollouts are
+    (``config.broad_phase``).
 
     Args:
       arc: (M, 3) m.  actions: (C, M, 3) m/s.  points: (P, 3) m; mask: (P,) bool.
@@ -327,12 +342,14 @@ def step_clearance(shape, arc: jnp.ndarray, actions: jnp.ndarray, points, mask, 
     Returns:
       (C,) m (+inf for an empty cloud).
     """
-    frac = jnp.arange(1, substeps + 1, dtype=arc.dtype) / substeps
-    states = arc + dt * frac[None, :, None, None] * actions[:, None]  # (C, S, M, 3)
-    velocity = jnp.zeros_like(points) if velocity is None else velocity
-    clouds = points + dt * frac[:, None, None] * velocity  # (S, P, 3)
-    per_substep = jax.vmap(lambda a, p: shape.min_distance(p, a, mask))  # over S
-    return jnp.min(jax.vmap(lambda a: per_substep(a, clouds))(states), axis=1)
+    frac = jnp.arange(1, config.check_substeps + 1, dtype=arc.dtype) / config.check_substeps
+    states = arc + config.dt * frac[None, :, None, None] * actions[:, None]  # (C, S, M, 3)
+    if velocity is not None:
+        points = points + config.dt * frac[:, None, None] * velocity  # (S, P, 3)
+    # One candidate at a time: the broad phase picks its points near the mean of the states it
+    # is given, and the candidates can move in opposite directions.
+    one = lambda s: jnp.min(rollout_min_distances(config, shape, s[None], points, mask))  # noqa: E731
+    return jax.vmap(one)(states)
 
 
 def cloud_velocity(points, mask, previous, previous_mask, dt: float) -> jnp.ndarray:
@@ -410,12 +427,19 @@ def mppi_step(spec: RobotSpec, config: MPPIConfig, shape, state: MPPIState, arc,
     # Per-state terms.
     frames = forward_kinematics(arcs, spec)  # (N, H, M + 1, 4, 4)
     goal_d = goal_distance(frames[..., -1, :, :], goal)  # (N, H)
-    if c.predict_motion:
-        velocity = cloud_velocity(points, mask, state.previous, state.previous_mask, c.dt)
+    observed, observed_mask = points, mask
+    velocity = (cloud_velocity(points, mask, state.previous, state.previous_mask, c.dt) if c.predict_motion
+                else None)
+    if c.fill_edge > 0:
+        parents, weights, valid = fill_weights(points, mask, c.fill_edge)
+        points = jnp.concatenate([points, interpolate(points, parents, weights)])
+        mask = jnp.concatenate([mask, valid])
+        if velocity is not None:
+            velocity = jnp.concatenate([velocity, interpolate(velocity, parents, weights)])
+    if velocity is not None:
         ahead = c.dt * jnp.arange(1, c.horizon + 1, dtype=points.dtype)
         dist = rollout_min_distances(config, shape, arcs, points + ahead[:, None, None] * velocity, mask, frames)
     else:
-        velocity = None
         dist = rollout_min_distances(config, shape, arcs, points, mask, frames)  # (N, H)
     coll = 1.0 / jnp.maximum(dist - c.safety_margin, c.epsilon)
     viol = jnp.sum(jnp.maximum(spec.l_min - arcs, 0.0) + jnp.maximum(arcs - spec.l_max, 0.0), axis=(-2, -1))
@@ -448,8 +472,7 @@ def mppi_step(spec: RobotSpec, config: MPPIConfig, shape, state: MPPIState, arc,
         if c.limit_action:
             candidates = jax.vmap(lambda a: limit_to_state_bounds(arc, a, c.dt, spec))(candidates)
         needed = c.safety_margin + c.check_margin
-        check = functools.partial(step_clearance, shape, arc, points=points, mask=mask, dt=c.dt,
-                                  substeps=c.check_substeps, velocity=velocity)
+        check = functools.partial(step_clearance, c, shape, arc, points=points, mask=mask, velocity=velocity)
         first = check(actions=candidates[:1])
         # The fallbacks are evaluated only when the MPPI action fails (lax.cond runs one branch).
         clear = jax.lax.cond(first[0] >= needed,
@@ -468,7 +491,7 @@ def mppi_step(spec: RobotSpec, config: MPPIConfig, shape, state: MPPIState, arc,
     info = MPPIInfo(
         plan=plan,
         predicted_min_distance=jnp.min(dist[best]),
-        current_min_distance=shape.min_distance(points, arc, mask),
+        current_min_distance=shape.min_distance(observed, arc, observed_mask),
         cost_goal=c_goal[best],
         cost_coll=c_coll[best],
         cost_state=c_state[best],
@@ -482,7 +505,7 @@ def mppi_step(spec: RobotSpec, config: MPPIConfig, shape, state: MPPIState, arc,
         action_clearance=clearance,
         action_choice=choice,
     )
-    return action, MPPIState(next_nominal, key, points, mask), info
+    return action, MPPIState(next_nominal, key, observed, observed_mask), info
 
 
 class MPPI:

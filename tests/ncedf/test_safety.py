@@ -76,11 +76,19 @@ def test_safety_check_keeps_a_safe_action():
     assert int(info.action_choice) == 0
 
 
-def test_step_clearance_is_the_min_over_the_substeps():
+@pytest.mark.parametrize("broad_phase", [False, True])
+def test_step_clearance_is_the_min_over_the_substeps(broad_phase):
     shape = make_shape("exact", SPEC)
-    wall = jnp.asarray(_wall())
-    actions = jnp.stack([jnp.asarray(CROSSING), 0.25 * jnp.asarray(CROSSING), jnp.zeros_like(CROSSING)])
-    got = step_clearance(shape, jnp.asarray(ARC), actions, wall, jnp.ones(len(wall), bool), 1.0, 4)
+    # The wall, and a dense patch beside the straight link on the other side: the points nearest
+    # to the candidates' mean state are the patch's, those nearest to the crossing are the wall's.
+    ys, zs = np.meshgrid(np.linspace(-0.3, 0.3, 20), np.linspace(0.5, 1.5, 40))
+    patch = np.stack([np.full(ys.size, 0.35), ys.ravel(), zs.ravel()], axis=1).astype(np.float32)
+    wall = jnp.asarray(np.concatenate([_wall(), patch]))
+    # Candidates that move apart (the broad phase must pick points near each one, not their mean).
+    sideways = jnp.asarray([[0.0, 0.26, -0.26]])
+    actions = jnp.stack([jnp.asarray(CROSSING), 0.25 * jnp.asarray(CROSSING), jnp.zeros_like(CROSSING), sideways])
+    config = dataclasses.replace(WALL_CONFIG, broad_phase=broad_phase)
+    got = step_clearance(config, shape, jnp.asarray(ARC), actions, wall, jnp.ones(len(wall), bool))
     for action, value in zip(actions, np.asarray(got)):
         truth = min(float(jnp.min(robot_signed_distance(wall, jnp.asarray(ARC) + s * action, SPEC)))
                     for s in (0.25, 0.5, 0.75, 1.0))
@@ -99,8 +107,8 @@ def test_a_wall_moving_into_the_robot_is_seen_with_predicted_motion():
     shape = make_shape("exact", SPEC)
     mask = jnp.ones(len(wall1), bool)
     ahead = jnp.asarray(wall1) + velocity  # where it is at the end of the next step
-    static = step_clearance(shape, jnp.asarray(ARC), jnp.asarray(CROSSING)[None], jnp.asarray(wall1), mask, 1.0, 4)
-    moving = step_clearance(shape, jnp.asarray(ARC), jnp.asarray(CROSSING)[None], jnp.asarray(wall1), mask, 1.0, 4,
+    static = step_clearance(config, shape, jnp.asarray(ARC), jnp.asarray(CROSSING)[None], jnp.asarray(wall1), mask)
+    moving = step_clearance(config, shape, jnp.asarray(ARC), jnp.asarray(CROSSING)[None], jnp.asarray(wall1), mask,
                             velocity)
     truth = min(float(jnp.min(robot_signed_distance(jnp.asarray(wall1) + s * velocity, jnp.asarray(ARC) + s * CROSSING,
                                                     SPEC))) for s in (0.25, 0.5, 0.75, 1.0))
