@@ -21,32 +21,10 @@ from pathlib import Path
 from typing import Callable
 
 from recorder import RecorderError
+from recorder.cli import EXIT_STATUS, OneLineParser, Stopped, stop_on_signals
 from recorder.recorder import FORMATS, check_writable, output_paths
 from scenarios.episode import Episode, EpisodeResult, EpisodeSettings
 from scenarios.presets import CONTROLLERS, DEFAULT_CONTROLLER, DEFAULT_REASON, PRESETS
-
-#: Exit status per signal: 128 + its number.
-EXIT_STATUS = {signal.SIGINT: 130, signal.SIGTERM: 143}
-
-
-class OneLineParser(argparse.ArgumentParser):
-    """argparse with one-line errors (``prog: error: ...``, exit 2) instead of usage + error."""
-
-    def error(self, message: str):
-        self.exit(2, f"{self.prog}: error: {message}\n")
-
-
-class Stopped(BaseException):
-    """SIGINT/SIGTERM outside the recording (setup, compilation): nothing was written."""
-
-    def __init__(self, signum: int):
-        super().__init__(signal.Signals(signum).name)
-        self.signum = signum
-
-
-def _stop(signum, frame):
-    raise Stopped(signum)
-
 
 def make_parser(scenario: str, description: str, *, links: int = 4, max_steps: int) -> OneLineParser:
     """A parser with the shared options (scenario options are added by the runner).
@@ -125,26 +103,23 @@ def run_cli(parser: argparse.ArgumentParser, argv: list[str] | None,
             make_settings: Callable[[argparse.Namespace], EpisodeSettings]) -> int:
     """Parse, validate, run one recorded episode with a progress bar, print the summary; the exit status."""
     args = parser.parse_args(argv)
-    previous = {sig: signal.signal(sig, _stop) for sig in EXIT_STATUS}
     try:
-        try:
-            settings = make_settings(args)
-            formats = parse_formats(args.formats)
-            if args.mesh_every < 1:
-                raise ValueError(f"--mesh-every must be >= 1, got {args.mesh_every}")
-            episode = Episode(settings)
-            check_writable(output_paths(args.out, formats), args.overwrite)
-        except (ValueError, RecorderError) as exc:
-            print(f"error: {exc}", file=sys.stderr)
-            return 2
-        result = episode.run(args.out, formats=formats, overwrite=args.overwrite, mesh_every=args.mesh_every,
-                             viewer=args.viewer, progress=True)
+        with stop_on_signals():
+            try:
+                settings = make_settings(args)
+                formats = parse_formats(args.formats)
+                if args.mesh_every < 1:
+                    raise ValueError(f"--mesh-every must be >= 1, got {args.mesh_every}")
+                episode = Episode(settings)
+                check_writable(output_paths(args.out, formats), args.overwrite)
+            except (ValueError, RecorderError) as exc:
+                print(f"error: {exc}", file=sys.stderr)
+                return 2
+            result = episode.run(args.out, formats=formats, overwrite=args.overwrite, mesh_every=args.mesh_every,
+                                 viewer=args.viewer, progress=True)
     except Stopped as stop:
         print(f"stopped by {stop}; nothing was written", file=sys.stderr)
         return EXIT_STATUS[stop.signum]
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
     if result.outcome == "interrupted":
         print(f"interrupted by {result.signal} after {result.steps} MPPI steps; kept them in "
               f"{' and '.join(result.paths)} (outcome 'interrupted')", file=sys.stderr)

@@ -382,7 +382,7 @@ def run_table(table: str, out: Path, budget: Budget, seed: int, command: str) ->
 
 # ---------------------------------------------------------------- CLI
 def parse_args(argv=None):
-    from scenarios.cli import OneLineParser
+    from recorder.cli import OneLineParser
 
     p = OneLineParser(prog="python -m scenarios.reproduce", description=__doc__.split("\n\n")[0],
                       epilog="Exit status: 0 done, 1 some episodes failed, 2 bad arguments, 130/143 interrupted "
@@ -415,7 +415,7 @@ def budget_from(args) -> Budget:
 
 def main(argv=None) -> int:
     from recorder import RecordingInterrupted
-    from scenarios.cli import EXIT_STATUS, Stopped
+    from recorder.cli import EXIT_STATUS, Stopped, stop_on_signals
 
     args = parse_args(argv)
     try:
@@ -430,21 +430,18 @@ def main(argv=None) -> int:
         return 2
     command = "python -m scenarios.reproduce " + " ".join(sys.argv[1:] if argv is None else argv)
 
-    def stop(signum, frame):
-        raise Stopped(signum)
-
-    previous = {sig: signal.signal(sig, stop) for sig in EXIT_STATUS}
     status = 0
     try:
-        for table in TABLES if args.table == "all" else (args.table,):
-            start = time.perf_counter()
-            code = run_table(table, out, budget, args.seed, command)
-            print(f"{table}: done in {time.perf_counter() - start:.0f} s (exit {code})", file=sys.stderr)
-            if code in EXIT_STATUS.values():
-                print(f"interrupted: complete recordings under {out} are kept; run the same command to finish",
-                      file=sys.stderr)
-                return code
-            status = max(status, code)
+        with stop_on_signals():
+            for table in TABLES if args.table == "all" else (args.table,):
+                start = time.perf_counter()
+                code = run_table(table, out, budget, args.seed, command)
+                print(f"{table}: done in {time.perf_counter() - start:.0f} s (exit {code})", file=sys.stderr)
+                if code in EXIT_STATUS.values():
+                    print(f"interrupted: complete recordings under {out} are kept; run the same command to finish",
+                          file=sys.stderr)
+                    return code
+                status = max(status, code)
     except Stopped as exc:
         print(f"stopped by {exc}: complete recordings under {out} are kept; run the same command to finish",
               file=sys.stderr)
@@ -454,9 +451,6 @@ def main(argv=None) -> int:
         print(f"stopped by {signum.name}: the network in training is recorded as interrupted, complete "
               f"recordings under {out} are kept; run the same command to finish", file=sys.stderr)
         return EXIT_STATUS[signum]
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
     return status
 
 

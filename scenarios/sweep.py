@@ -591,7 +591,7 @@ def _option(text: str) -> tuple[str, str]:
 
 def parse_args(argv=None) -> argparse.Namespace:
     from ncedf.shapes import REPRESENTATIONS
-    from scenarios.cli import OneLineParser
+    from recorder.cli import OneLineParser
     from scenarios.episode import GOALS, SCENARIOS, EpisodeSettings
     from scenarios.presets import CONTROLLERS
 
@@ -631,7 +631,7 @@ def parse_args(argv=None) -> argparse.Namespace:
 
 
 def main(argv=None) -> int:
-    from scenarios.cli import Stopped
+    from recorder.cli import Stopped
 
     def stop(signum, frame):
         raise Stopped(signum)

@@ -1,0 +1,42 @@
+"""Command-line conventions every command of the project shares (scenario runners, sweeps,
+reproduce, analysis): one-line argument errors, and SIGINT / SIGTERM raised as ``Stopped`` with
+exit status 130 / 143. Here because ``recorder`` is the one package every command depends on."""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import signal
+
+#: Exit status per signal: 128 + its number.
+EXIT_STATUS = {signal.SIGINT: 130, signal.SIGTERM: 143}
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """argparse with one-line errors (``prog: error: ...``, exit 2) instead of usage + error."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+class Stopped(BaseException):
+    """SIGINT or SIGTERM arrived; ``signum`` says which."""
+
+    def __init__(self, signum: int):
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+@contextlib.contextmanager
+def stop_on_signals():
+    """Inside the block, SIGINT and SIGTERM raise :class:`Stopped`; the previous handlers come back after."""
+
+    def stop(signum, frame):
+        raise Stopped(signum)
+
+    previous = {sig: signal.signal(sig, stop) for sig in EXIT_STATUS}
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
