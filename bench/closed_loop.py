@@ -29,7 +29,8 @@ alternating, so both see the same load; printed: median and mean +- std ms per
 step and the ratio of the medians.
 
 Measured on a 2-core CPU machine shared with other work (default model, exact
-judge; ``--seeds 3 --envs 10``, spheres with the fixed goal):
+judge). The first block is the earlier ``ours`` (no surface model, check
+margin 0), ``--seeds 3 --envs 10``, spheres with the fixed goal:
 
   cluttered L4: ours 3/3 successes (median reach step 220), release 2/3 and 1
     collision, paper 0/3 (stuck); L5: ours 3/3 (46), release 1/3, paper 0/3;
@@ -41,17 +42,27 @@ judge; ``--seeds 3 --envs 10``, spheres with the fixed goal):
     without the safety check the same episodes as ours (the check never
     changed an outcome here); low-pass noise (beta 0.6) 0/2 at L4; predicted
     obstacle motion on spheres: the same 9/10 with 25% more solver time.
-  other seeds (``--variants ours --seed0 3 --seeds 2 --goals random``): L4 1/2
-    (1 stuck 1.4 m short), L5 1/2 and 1 collision (seed 3, step 22: the robot
-    slides between the sparse cloud's points, predicted clearance 0.37 m,
-    exact -0.003 m), L7 2/2; spheres with random goals 10/10.
-    ``ours:check_margin=0.5`` avoids that collision (L5 seed 3 reached at step
-    48) and keeps L5 3/3, L7 3/3 on seeds 0-2, but leaves L4 0/3 (stuck
-    1.5-1.6 m short), so ``ours`` keeps check_margin 0.
-  ``--timing 30``: solver ms per step, median, ours / paper at the same N and
-    H: L4 64.8 / 62.8 (1.03), L5 147.8 / 136.3 (1.08), L7 47.8 / 47.9 (1.00),
-    spheres 87.4 / 85.1 (1.03); 1.07-1.28 before the fallbacks of the safety
-    check were made lazy.
+  other seeds: L5 seed 3 collides at step 22 (predicted clearance 0.37 m,
+    exact -0.003 m): the link grazes box 1's corner (2, 2.4, 6.5), whose nearest
+    observed point is 0.52 m away. ``check_margin`` 0.15 alone changes nothing
+    (the same four L5 episodes, seeds 0-3); 0.5 avoids the collision but
+    leaves L4 stuck 1.5-1.6 m short (0/3).
+
+The surface model (``fill_edge`` 1.2 m, ``ncedf.cloud``) and the check margin
+0.15 m, cluttered L5 seeds 0-3 (``--links 5 --seeds 4 --variants
+ours-fill,...``): without either 3/4 and 1 collision (reach 41-184); fill alone
+0/4, 4 collisions (-0.003 to -0.034 m: the broad phase's 128 candidates per
+link cover a small patch of the 30x denser cloud, and the 0.05 m check margin
+is below the N-CEDF's and the fill's errors); fill with 512 candidates 2/4, 2
+collisions; fill and margin 0.15 4/4, no collision, reach 188-243, smallest
+exact distance 0.072-0.157 m (with 512 candidates 184-214, 0.12-0.21 m, but
+2-3x the paper controller's solver time, so ``ours`` keeps 128). The safer
+controller is slower to the goal: 5 links reached at step ~200 instead of ~45.
+
+``--timing 8`` with the surface model: L4 131.4 / 111.1 ms (1.18), L7 58.5 /
+41.2 (1.42), spheres 84.3 / 80.8 (1.04) (before it: L4 64.8 / 62.8 (1.03),
+L5 147.8 / 136.3 (1.08), L7 47.8 / 47.9 (1.00), spheres 87.4 / 85.1 (1.03),
+``--timing 30`` on a quieter machine).
 
 One process, episodes in sequence (a configuration compiles once). ``--json``
 also writes every episode's result. Ctrl-C prints the table of the episodes
@@ -86,6 +97,8 @@ VARIANTS: dict[str, tuple[str, dict]] = {
     "ours-sampling": ("ours", {"sampling": "project"}),
     "ours-ess": ("ours", {"target_ess": None}),
     "ours-check": ("ours", {"safety_check": False}),
+    "ours-fill": ("ours", {"fill_edge": 0.0}),
+    "ours-margin": ("ours", {"check_margin": 0.0}),
     "ours+smooth": ("ours", {"noise_smoothing": 0.6}),
     "ours+motion": ("ours", {"predict_motion": True}),
     "paper": ("paper", {}),

@@ -431,8 +431,8 @@ def mppi_step(spec: RobotSpec, config: MPPIConfig, shape, state: MPPIState, arc,
     velocity = (cloud_velocity(points, mask, state.previous, state.previous_mask, c.dt) if c.predict_motion
                 else None)
     if c.fill_edge > 0:
-        parents, weights, valid = fill_weights(points, mask, c.fill_edge)
-        points = jnp.concatenate([points, interpolate(points, parents, weights)])
+        parents, weights, offsets, valid = fill_weights(points, mask, c.fill_edge)
+        points = jnp.concatenate([points, interpolate(points, parents, weights) + offsets])
         mask = jnp.concatenate([mask, valid])
         if velocity is not None:
             velocity = jnp.concatenate([velocity, interpolate(velocity, parents, weights)])

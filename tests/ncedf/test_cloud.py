@@ -36,7 +36,8 @@ def test_fill_points_lie_on_the_plane_and_cover_its_holes():
     extra = np.asarray(filled)[np.asarray(fmask)][len(cloud):]
     assert len(extra) > 10 * len(cloud)
     np.testing.assert_allclose(extra[:, 2], 0.0, atol=1e-6)
-    assert extra[:, :2].min() >= -1e-5 and extra[:, :2].max() <= side + 1e-5  # inside the samples' hull
+    # Inside the samples' hull, or extrapolated at most max_edge / 2 beyond it.
+    assert extra[:, :2].min() >= -0.6 - 1e-5 and extra[:, :2].max() <= side + 0.6 + 1e-5
     grid = np.stack(np.meshgrid(np.linspace(0.6, side - 0.6, 60), np.linspace(0.6, side - 0.6, 60)), -1).reshape(-1, 2)
     grid = np.column_stack([grid, np.zeros(len(grid))])
     raw_gap = cKDTree(cloud).query(grid)[0]
@@ -51,9 +52,10 @@ def test_no_fill_between_points_farther_apart_than_max_edge():
     far = cloud + np.array([4.5, 0.0, 0.0], np.float32)  # a second plate 1.5 m beyond the first
     points, mask = _padded(np.concatenate([cloud, far]), 128)
     max_edge = 1.0
-    parents, weights, valid = (np.asarray(x) for x in fill_weights(points, mask, max_edge))
+    parents, weights, offsets, valid = (np.asarray(x) for x in fill_weights(points, mask, max_edge))
     p = np.asarray(points)
     used = parents[valid]
+    assert np.all(np.linalg.norm(offsets, axis=1) <= max_edge / 2 + 1e-5)
     assert np.all(np.asarray(mask)[used])  # padding is never a parent
     np.testing.assert_allclose(weights.sum(1), 1.0, atol=1e-6)
     assert np.all(weights >= 0)
@@ -61,14 +63,40 @@ def test_no_fill_between_points_farther_apart_than_max_edge():
         both = (weights[valid][:, a] > 0) & (weights[valid][:, b] > 0)
         length = np.linalg.norm(p[used[both, a]] - p[used[both, b]], axis=1)
         assert length.max() <= max_edge + 1e-5
-    extra = np.asarray(interpolate(points, parents, weights))[valid]
-    assert not np.any((extra[:, 0] > 3.0 + 1e-5) & (extra[:, 0] < 4.5 - 1e-5))  # nothing in the gap
+    extra = (np.asarray(interpolate(points, parents, weights)) + offsets)[valid]
+    # Nothing in the gap beyond the extrapolation of the plates' edges (max_edge / 2).
+    assert not np.any((extra[:, 0] > 3.0 + max_edge / 2 + 1e-5) & (extra[:, 0] < 4.5 - max_edge / 2 - 1e-5))
+    np.testing.assert_allclose(extra[:, 2], 0.0, atol=1e-5)  # extrapolated in the plates' plane
+
+
+def test_a_hole_wider_than_the_edges_reach_is_covered_from_its_rim():
+    g = np.arange(-2.0, 2.01, 0.3)
+    xy = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
+    xy = xy[np.linalg.norm(xy, axis=1) > 0.55]  # a round hole of radius 0.55 m in a 0.3 m grid
+    cloud = np.column_stack([xy, np.zeros(len(xy))]).astype(np.float32)
+    points, mask = _padded(cloud, 256)
+    filled, fmask = fill(points, mask, 1.2)
+    pts = np.asarray(filled)[np.asarray(fmask)]
+    ring = np.column_stack([0.3 * np.cos(np.linspace(0, 2 * np.pi, 24)), 0.3 * np.sin(np.linspace(0, 2 * np.pi, 24)),
+                            np.zeros(24)])
+    probes = np.vstack([np.zeros((1, 3)), ring])  # the hole's centre and a circle half way to its rim
+    raw, seen = cKDTree(cloud).query(probes)[0], cKDTree(pts).query(probes)[0]
+    assert raw.min() > 0.24 and raw[0] > 0.54
+    assert seen[0] < 0.15 and seen.mean() < 0.6 * raw.mean() and np.all(seen <= raw + 1e-9)
+    np.testing.assert_allclose(pts[:, 2], 0.0, atol=1e-5)
+
+
+def test_isolated_points_get_no_fill():
+    centres = np.array([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0], [0.0, 2.0, 1.0]], np.float32)  # 2 m apart
+    points, mask = _padded(centres, 8)
+    _, fmask = fill(points, mask, 1.2)
+    assert int(np.asarray(fmask).sum()) == len(centres)
 
 
 def test_velocities_carry_over_to_the_fill_points():
     cloud = _random_plane(40, 3.0, seed=2)
     points, mask = _padded(cloud, 64)
-    parents, weights, valid = fill_weights(points, mask, 1.2)
+    parents, weights, _, valid = fill_weights(points, mask, 1.2)
     omega = np.array([0.0, 0.0, 0.5], np.float32)  # rigid rotation about z: v = omega x p
     velocity = jnp.cross(jnp.asarray(omega), points)
     carried = np.asarray(interpolate(velocity, parents, weights))[np.asarray(valid)]
