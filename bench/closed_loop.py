@@ -8,7 +8,8 @@
 A variant is the ``release`` or ``ours`` preset of ``scenarios.presets`` with
 some MPPIConfig fields changed (``VARIANTS``): ``ours`` with one of its changes
 turned off (``ours-X``) or a candidate it leaves out turned on (``ours+X``:
-low-pass noise, predicted obstacle motion), ``release`` with ours's sampling,
+low-pass noise, predicted obstacle motion, the surface model of the cloud with
+and without a larger check margin), ``release`` with ours's sampling,
 and ``paper`` at ``ours``'s rollouts and horizon (the reference of the solver
 time). Every variant runs the same
 episodes (``scenarios.episode``, no recording): the cluttered scene for each of
@@ -50,14 +51,19 @@ margin 0), ``--seeds 3 --envs 10``, spheres with the fixed goal:
 
 The surface model (``fill_edge`` 1.2 m, ``ncedf.cloud``) and the check margin
 0.15 m, cluttered L5 seeds 0-3 (``--links 5 --seeds 4 --variants
-ours-fill,...``): without either 3/4 and 1 collision (reach 41-184); fill alone
-0/4, 4 collisions (-0.003 to -0.034 m: the broad phase's 128 candidates per
-link cover a small patch of the 30x denser cloud, and the 0.05 m check margin
-is below the N-CEDF's and the fill's errors); fill with 512 candidates 2/4, 2
-collisions; fill and margin 0.15 4/4, no collision, reach 188-243, smallest
-exact distance 0.072-0.157 m (with 512 candidates 184-214, 0.12-0.21 m, but
-2-3x the paper controller's solver time, so ``ours`` keeps 128). The safer
-controller is slower to the goal: 5 links reached at step ~200 instead of ~45.
+ours,ours+fill,ours+fill+margin``; the model then had no extrapolation): ours
+3/4 and 1 collision (reach 41-184); fill alone 0/4, 4 collisions (-0.003 to
+-0.034 m: the broad phase's 128 candidates per link cover a small patch of the
+30x denser cloud, and the 0.05 m check margin is below the N-CEDF's and the
+fill's errors); fill with 512 candidates 2/4, 2 collisions; fill and margin
+0.15 4/4, no collision, reach 188-243, smallest exact distance 0.07-0.16 m
+(with 512 candidates 184-214 and 0.12-0.21 m, but 2-3x the paper controller's
+solver time). At 4 links the same fill and margin gave 4 collisions in 8
+seeds (0-7, the robot climbs along box 1's face, where a hole of the fill
+hides it by 0.28 m), and with the extrapolation into empty sectors 0/5
+successes, 4 stuck 2.3-3.0 m short and 1 collision (seeds 1-5). So ``ours``
+does not use the surface model: it trades the 5-link collision for 4-link
+collisions and stalls.
 
 ``--timing 8`` with the surface model: L4 131.4 / 111.1 ms (1.18), L7 58.5 /
 41.2 (1.42), spheres 84.3 / 80.8 (1.04) (before it: L4 64.8 / 62.8 (1.03),
@@ -97,8 +103,8 @@ VARIANTS: dict[str, tuple[str, dict]] = {
     "ours-sampling": ("ours", {"sampling": "project"}),
     "ours-ess": ("ours", {"target_ess": None}),
     "ours-check": ("ours", {"safety_check": False}),
-    "ours-fill": ("ours", {"fill_edge": 0.0}),
-    "ours-margin": ("ours", {"check_margin": 0.0}),
+    "ours+fill": ("ours", {"fill_edge": 1.2}),
+    "ours+fill+margin": ("ours", {"fill_edge": 1.2, "check_margin": 0.15}),
     "ours+smooth": ("ours", {"noise_smoothing": 0.6}),
     "ours+motion": ("ours", {"predict_motion": True}),
     "paper": ("paper", {}),
