@@ -19,7 +19,7 @@ from matplotlib.patches import Circle, Rectangle  # noqa: E402
 
 from analysis import paper  # noqa: E402
 from analysis.load import Recordings, pooled  # noqa: E402
-from analysis.scene import snapshots  # noqa: E402
+from recorder.read import load_snapshots as snapshots  # noqa: E402
 from analysis.stats import wilson  # noqa: E402
 from recorder import load_run  # noqa: E402
 

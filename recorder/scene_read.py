@@ -1,6 +1,7 @@
-"""The recorded geometry of chosen steps of one .mcap recording (for the snapshot figures).
+"""The recorded geometry of chosen steps of one .mcap recording (for the snapshot figures);
+reached as ``recorder.read.load_snapshots``.
 
-``recorder.read`` gives metrics, state and outcome, not the scene; this reads the scene topics
+``recorder.read.load_run`` gives metrics, state and outcome, not the scene; this reads the scene topics
 (``recorder.schema``: backbone, observed points, obstacle shapes, goal, plan) of a few steps with
 the ``mcap`` reader and the protobuf schemas stored in the file. Steps are matched by their log time
 (the recorder logs every event of a step at its ``sim_time``).
