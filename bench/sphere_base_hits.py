@@ -1,0 +1,100 @@
+"""Dynamic-sphere environments whose collision no controller can avoid: ``python bench/sphere_base_hits.py``.
+
+Every configuration of the robot contains the base disk of its first link
+(radius r, at the origin, in the plane z = 0): arc lengths move the body, never
+its base. A sphere that overlaps that disk collides with the robot whatever the
+controller does, unless the episode has already ended. Per environment and goal
+kind of ``scenarios.spheres`` this prints the first time (and control step) at
+which a sphere overlaps the base disk, sampled every ``--dt`` seconds over the
+episode's step budget; a sampled overlap is a real one (a lower bound on the
+unavoidable collisions: overlaps shorter than ``--dt`` are missed).
+
+With ``--runs FOLDER`` (recordings of ``scenarios.sweep``/``reproduce``), it also
+lists the environments where the recorded episodes collided, the earliest
+reach step of any successful episode there, and how many collisions fall in
+environments whose base disk is hit before that step, where no controller
+reaching the goal at that pace can avoid them.
+
+    python bench/sphere_base_hits.py --envs 200 --runs runs/table3
+    python bench/sphere_base_hits.py --envs 200 --goal random --runs runs/table3_random
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from ncedf.robot import RobotSpec  # noqa: E402
+from recorder.cli import OneLineParser  # noqa: E402
+from scenarios.spheres import MAX_STEPS, make_environment  # noqa: E402
+from scenarios.world import World  # noqa: E402
+
+#: Control step of the scenarios, s.
+STEP_DT = 0.05
+
+
+def disk_gap(centres: np.ndarray, radii: np.ndarray, disk_radius: float) -> np.ndarray:
+    """Distance from each sphere to the base disk (negative = overlap), m.
+
+    Args:
+      centres: (..., S, 3) m.  radii: (S,) m.
+    """
+    rho = np.linalg.norm(centres[..., :2], axis=-1)
+    return np.hypot(np.maximum(rho - disk_radius, 0.0), centres[..., 2]) - radii
+
+
+def first_base_hit(world: World, spec: RobotSpec, horizon: float, dt: float) -> float | None:
+    """First sampled time in [0, horizon] at which a sphere overlaps the base disk, s (None if never)."""
+    times = np.arange(0.0, horizon + 0.5 * dt, dt)
+    centres = np.stack([world.sphere_centres(t) for t in times])  # (T, S, 3)
+    radii = np.array([s.radius for s in world.spheres])
+    hit = np.any(disk_gap(centres, radii, spec.radius) < 0.0, axis=1)
+    return float(times[np.argmax(hit)]) if hit.any() else None
+
+
+def main(argv=None) -> int:
+    p = OneLineParser(prog="python bench/sphere_base_hits.py", description=__doc__.split("\n\n")[0])
+    p.add_argument("--envs", type=int, default=200, help="environments 0..N-1 (default 200)")
+    p.add_argument("--goal", choices=("fixed", "random"), default="fixed", help="goal kind (default fixed)")
+    p.add_argument("--dt", type=float, default=0.005, help="time sampling, s (default 0.005)")
+    p.add_argument("--runs", help="folder of sphere recordings to compare with")
+    args = p.parse_args(argv)
+    if args.envs < 1 or args.dt <= 0:
+        p.error(f"--envs must be >= 1 and --dt > 0, got {args.envs} and {args.dt}")
+    spec = RobotSpec(4)
+    hits = {}
+    for env in range(args.envs):
+        world, _, _ = make_environment(env, spec, args.goal)
+        t = first_base_hit(world, spec, MAX_STEPS * STEP_DT, args.dt)
+        if t is not None:
+            hits[env] = t
+    print(f"{args.goal} goal: {len(hits)} of {args.envs} environments have a sphere through the base disk:")
+    print("  " + ", ".join(f"env {e} at {t:.3f} s (step {t / STEP_DT:.1f})" for e, t in hits.items()))
+    if args.runs:
+        from recorder.read import load_summaries
+
+        df = load_summaries(args.runs)
+        df = df[(df.scenario == "spheres") & (df["settings.goal"] == args.goal) & (df.env_seed < args.envs)]
+        for (shape, controller), g in df.groupby(["shape", "controller"]):
+            fastest = g.loc[g.outcome == "success", "reach_step"].min()
+            coll = g[g.outcome == "collision"]
+            early = [int(e) for e in coll.env_seed if e in hits and hits[e] / STEP_DT < fastest]
+            late = [int(e) for e in coll.env_seed if e in hits and e not in early]
+            print(f"{shape} / {controller}: {len(g)} episodes, {len(coll)} collisions; earliest reach step "
+                  f"{fastest:.0f}; collisions where the base disk is hit before it: {len(early)} {early}; "
+                  f"hit later: {len(late)} {late}; other: "
+                  f"{sorted(int(e) for e in coll.env_seed if e not in hits)}")
+        unavoidable = sorted(e for e, t in hits.items() if t / STEP_DT < df.loc[df.outcome == 'success',
+                                                                                'reach_step'].min())
+        print(f"environments no controller reaching the goal at the recorded pace can keep collision-free: "
+              f"{len(unavoidable)} of {args.envs} ({len(unavoidable) / args.envs:.3f}) {unavoidable}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
