@@ -21,7 +21,6 @@ reaching the goal at that pace can avoid them.
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
