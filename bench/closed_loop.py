@@ -65,6 +65,14 @@ successes, 4 stuck 2.3-3.0 m short and 1 collision (seeds 1-5). So ``ours``
 does not use the surface model: it trades the 5-link collision for 4-link
 collisions and stalls.
 
+A sharper temperature (``ours:target_ess=0.01``, 1% of N) frees the 4-link
+runs that stall (seeds 4, 6, 7 reached at steps 212-215), but over 20 seeds
+per link count (``scenarios.sweep`` with that preset) it collides more: L4
+19/20 and 1 collision (seed 0, at a 0.8 m hole of box 1's cloud), L5 18/20
+and 2 (seeds 3, 9), L7 18/20 and 2 (seeds 14, 17), against ours's 13/20 and
+0, 19/20 and 1, 20/20 and 0. ``ours`` keeps 2%. The covariance 0.05 with
+ours's sampling: seed 4 reached at step 181, seeds 6 and 7 collide.
+
 ``--timing 8`` with the surface model: L4 131.4 / 111.1 ms (1.18), L7 58.5 /
 41.2 (1.42), spheres 84.3 / 80.8 (1.04) (before it: L4 64.8 / 62.8 (1.03),
 L5 147.8 / 136.3 (1.08), L7 47.8 / 47.9 (1.00), spheres 87.4 / 85.1 (1.03),
