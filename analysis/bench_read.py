@@ -12,7 +12,6 @@ record existed is read in full by both (the line says so).
 
 from __future__ import annotations
 
-import argparse
 import os
 import sys
 import tempfile
@@ -22,8 +21,8 @@ from pathlib import Path
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from analysis.cli import Parser  # noqa: E402
 from recorder import load_runs, load_summaries, mcap_scan, summary  # noqa: E402
+from recorder.cli import OneLineParser  # noqa: E402
 
 TARGET = 4000
 
@@ -35,7 +34,7 @@ def _timed(fn, folder) -> tuple[float, object]:
 
 
 def main(argv=None) -> int:
-    p = Parser(prog="python analysis/bench_read.py", description=__doc__.split("\n\n")[0])
+    p = OneLineParser(prog="python analysis/bench_read.py", description=__doc__.split("\n\n")[0])
     p.add_argument("recording", nargs="?", help="an .mcap recording (default: the first one under runs/)")
     p.add_argument("--copies", type=int, default=400)
     args = p.parse_args(argv)

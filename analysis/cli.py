@@ -4,9 +4,7 @@ from __future__ import annotations
 
 import sys
 
-from recorder.cli import EXIT_STATUS, OneLineParser as Parser, Stopped, stop_on_signals
-
-__all__ = ["Parser", "run_until_stopped"]
+from recorder.cli import EXIT_STATUS, Stopped, stop_on_signals
 
 
 def run_until_stopped(body, args, kept: str) -> int:

@@ -18,14 +18,15 @@ from pathlib import Path
 if __package__ in (None, ""):  # run as a script: make the repository importable
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from analysis.cli import Parser, run_until_stopped  # noqa: E402
+from analysis.cli import run_until_stopped  # noqa: E402
 from analysis.load import check_folder, load  # noqa: E402
 from analysis.make_tables import report_problems  # noqa: E402
 from recorder import RecorderError  # noqa: E402
+from recorder.cli import OneLineParser  # noqa: E402
 
 
 def parse_args(argv=None) -> argparse.Namespace:
-    p = Parser(prog="python analysis/make_figures.py", description=__doc__.split("\n\n")[0])
+    p = OneLineParser(prog="python analysis/make_figures.py", description=__doc__.split("\n\n")[0])
     p.add_argument("runs", nargs="?", default="runs", help="folder of recordings (default runs/)")
     p.add_argument("--out", default="figures", help="output folder (default figures/)")
     p.add_argument("--model", help="N-CEDF weights for Fig. 3 (default: the shipped model)")

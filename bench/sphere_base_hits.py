@@ -28,13 +28,14 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from ncedf.mppi import MPPIConfig  # noqa: E402
 from ncedf.robot import RobotSpec  # noqa: E402
 from recorder.cli import OneLineParser  # noqa: E402
 from scenarios.spheres import MAX_STEPS, make_environment  # noqa: E402
 from scenarios.world import World  # noqa: E402
 
-#: Control step of the scenarios, s.
-STEP_DT = 0.05
+#: Control step of the scenarios, s (every preset keeps the default).
+STEP_DT = MPPIConfig.dt
 
 
 def disk_gap(centres: np.ndarray, radii: np.ndarray, disk_radius: float) -> np.ndarray:

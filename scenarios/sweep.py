@@ -78,6 +78,7 @@ from typing import TYPE_CHECKING, Callable, Sequence
 from tqdm import tqdm
 
 from recorder import IncompleteRecordingWarning, RecorderError, RecordingInterrupted, load_run
+from recorder.cli import EXIT_STATUS, OneLineParser, Stopped, stop_on_signals
 from recorder.recorder import FORMATS, output_paths
 
 if TYPE_CHECKING:
@@ -98,7 +99,7 @@ STOP_GRACE_S = 10.0
 POLL_S = 0.2
 #: The persistent JAX compilation cache of a local sweep, under its output folder.
 JAX_CACHE = ".jax-cache"
-_SIGNALS = (signal.SIGINT, signal.SIGTERM)  # exit status 128 + the signal's number
+_SIGNALS = tuple(EXIT_STATUS)  # SIGINT, SIGTERM
 
 
 class SweepError(Exception):
@@ -591,7 +592,6 @@ def _option(text: str) -> tuple[str, str]:
 
 def parse_args(argv=None) -> argparse.Namespace:
     from ncedf.shapes import REPRESENTATIONS
-    from recorder.cli import OneLineParser
     from scenarios.episode import GOALS, SCENARIOS, EpisodeSettings
     from scenarios.presets import CONTROLLERS
 
@@ -631,22 +631,14 @@ def parse_args(argv=None) -> argparse.Namespace:
 
 
 def main(argv=None) -> int:
-    from recorder.cli import Stopped
-
-    def stop(signum, frame):
-        raise Stopped(signum)
-
     args = parse_args(argv)
     # Outside the sweep loop (checks before it, the summary after it) a signal stops at once.
-    previous = {sig: signal.signal(sig, stop) for sig in _SIGNALS}
     try:
-        return _main(args)
+        with stop_on_signals():
+            return _main(args)
     except Stopped as exc:
         print(f"stopped by {exc}; recordings already complete are kept", file=sys.stderr)
-        return 128 + exc.signum
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
+        return EXIT_STATUS[exc.signum]
 
 
 def _main(args: argparse.Namespace) -> int:
