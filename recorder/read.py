@@ -1,9 +1,10 @@
 """Read recordings (.rrd or .mcap) back into pandas: the only way analysis touches files.
 
 `load_run(path)` gives one `Run`; `load_snapshots(path, times)` the recorded geometry (robot,
-cloud, obstacles, goal, plan) of chosen steps of an .mcap (``recorder.scene_read``); `load_runs(folder)` gives a per-run table and a long per-step
-metrics table over every recording under a folder (reading the .mcap of a run when both files
-exist: it only parses the small JSON topics). `load_summaries(folder)` gives the per-run table with
+cloud, obstacles, goal, plan) of chosen steps of an .mcap (``recorder.scene_read``);
+`load_runs(folder)` gives a per-run table and a long per-step metrics table over every recording
+under a folder (reading the .mcap of a run when both files exist: it only parses the small JSON
+topics). `load_summaries(folder)` gives the per-run table with
 per-metric statistics, from the `summary` record of closed .mcap files (footer and summary section
 only: no chunk is opened) and from the rows of every other recording.
 
@@ -24,11 +25,11 @@ import numpy as np
 import pandas as pd
 
 from recorder import mcap_scan, schema, summary
+from recorder.errors import RecorderError
 from recorder.scene_read import Snapshot, snapshots as load_snapshots
 
 __all__ = ["IncompleteRecordingWarning", "Run", "Snapshot", "find_recordings", "load_run", "load_runs",
            "load_snapshots", "load_summaries"]
-from recorder.errors import RecorderError
 
 _RRD_MAGIC = b"RRF2"
 _RRD_FOOTER_TAIL = b"RRF2FOOT"
