@@ -42,13 +42,13 @@ next run trains it again), complete recordings are kept; exit 130 / 143.
 from __future__ import annotations
 
 import dataclasses
-import datetime
 import os
-import platform
 import signal
 import sys
 import time
 from pathlib import Path
+
+from scenarios import manifest
 
 #: Table I grid (paper): Dense layers incl. output x hidden width.
 LAYERS = (2, 3, 4, 5)
@@ -68,7 +68,6 @@ TIMING_SHAPES = TABLE3_SHAPES
 TIMING_LINK_COUNTS = (4, 5, 7)
 TIMING_POINT_COUNTS = (100, 250, 500, 1000, 2000, 5000)
 TABLES = ("table1", "table2", "table3", "table4", "timing")
-EXPERIMENT = "experiment"  # stem of an experiment's manifest recording
 PAPER_EPOCHS = 100
 
 
@@ -128,34 +127,9 @@ def folder(out: Path, table: str, budget: Budget) -> Path:
     return Path(out) / (f"{table}-quick" if budget.quick else table)
 
 
-def machine() -> dict:
-    """The hardware and software a run used (for the tables' captions)."""
-    import jax
-
-    from scenarios.episode import package_versions
-
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo") as f:
-            cpu = next(line.split(":", 1)[1].strip() for line in f if line.startswith("model name"))
-    except (OSError, StopIteration):
-        pass
-    return {"cpu": cpu, "cores": os.cpu_count(), "device": str(jax.devices()[0].platform),
-            "device_kind": jax.devices()[0].device_kind, "system": platform.platform(),
-            "versions": package_versions()}
-
-
 def write_manifest(where: Path, table: str, budget: Budget, command: str, settings: dict) -> None:
-    """``experiment.mcap``: the experiment's /run metadata (rewritten by every run of it)."""
-    from recorder import Recorder
-
-    meta = {"run_id": f"{where.name}/{EXPERIMENT}", "scenario": "experiment", "experiment": table,
-            "quick": budget.quick, "budget": dataclasses.asdict(budget),
-            "settings": settings, "command": command, "date": datetime.datetime.now(datetime.UTC).isoformat(),
-            "machine": machine()}
-    where.mkdir(parents=True, exist_ok=True)
-    with Recorder(where / EXPERIMENT, meta, ("mcap",), overwrite=True) as rec:
-        rec.finish({"outcome": "success", "steps": 0})
+    """``experiment.mcap`` of ``table`` (``scenarios.manifest``), with the budget and whether it is quick."""
+    manifest.write_manifest(where, table, command, settings, quick=budget.quick, budget=dataclasses.asdict(budget))
 
 
 # ---------------------------------------------------------------- Tables I and II: networks

@@ -13,6 +13,9 @@ Resuming: an episode whose recordings (every requested format) are closed and
 hold a final outcome (success, collision, stuck) is skipped; a missing, unclosed,
 unreadable or interrupted one is run again and overwritten. The same command
 finishes an interrupted sweep; on a finished one it only prints the summary.
+After the episodes (also when interrupted), the sweep rewrites
+``<out>/experiment.mcap`` (``scenarios.manifest``): the command, the date, the
+machine and the package versions, which the tables of ``analysis/`` name.
 
 Failures: episodes are independent. One that raises is reported on one line (its
 settings and the error) and the others go on; the exit status is 1 if any failed.
@@ -80,6 +83,7 @@ from tqdm import tqdm
 from recorder import IncompleteRecordingWarning, RecorderError, RecordingInterrupted, load_run
 from recorder.cli import EXIT_STATUS, OneLineParser, Stopped, stop_on_signals
 from recorder.recorder import FORMATS, output_paths
+from scenarios import manifest
 
 if TYPE_CHECKING:
     from scenarios.episode import EpisodeSettings
@@ -632,16 +636,17 @@ def parse_args(argv=None) -> argparse.Namespace:
 
 def main(argv=None) -> int:
     args = parse_args(argv)
+    command = "python -m scenarios.sweep " + " ".join(sys.argv[1:] if argv is None else argv)
     # Outside the sweep loop (checks before it, the summary after it) a signal stops at once.
     try:
         with stop_on_signals():
-            return _main(args)
+            return _main(args, command)
     except Stopped as exc:
         print(f"stopped by {exc}; recordings already complete are kept", file=sys.stderr)
         return EXIT_STATUS[exc.signum]
 
 
-def _main(args: argparse.Namespace) -> int:
+def _main(args: argparse.Namespace, command: str) -> int:
     model = str(Path(args.model).resolve()) if args.model else None  # rerunnable from anywhere, any node
     common = {k: v for k, v in (("samples", args.samples), ("horizon", args.horizon),
                                 ("max_steps", args.max_steps), ("goal", args.goal), ("model", model))
@@ -669,6 +674,9 @@ def _main(args: argparse.Namespace) -> int:
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    # After the sweep: the manifest starts JAX (the machine's device), which the workers must own first.
+    settings = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()}
+    manifest.write_manifest(args.out, "sweep", command, {**settings, "episodes": len(episodes)})
     if report.signum is not None:
         complete = report.count("skipped") + report.count("run")
         print(f"interrupted by {signal.Signals(report.signum).name}: {complete} of {len(report.episodes)} episodes "
