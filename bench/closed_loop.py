@@ -261,17 +261,18 @@ def parse_variants(text: str) -> list[str]:
     values = parse_list(text, str, "variant")
     for value in values:
         try:
-            _, fields = resolve(value)
+            preset, fields = resolve(value)
             if fields:
-                episodes_config_check(fields)
+                episodes_config_check(preset, fields)
         except ValueError as exc:
             raise argparse.ArgumentTypeError(str(exc)) from None
     return values
 
 
-def episodes_config_check(fields: dict) -> None:
-    """Raise ValueError naming a bad field value (MPPIConfig's own validation)."""
-    dataclasses.replace(MPPIConfig(), **fields)
+def episodes_config_check(preset: str, fields: dict) -> None:
+    """Raise ValueError naming a bad field value (MPPIConfig's own validation of the preset's
+    fields with ``fields`` changed)."""
+    MPPIConfig(**{**dict(PRESETS[preset].fields), **fields})
 
 
 def parse_list(text: str, cast, name: str, allowed=None):

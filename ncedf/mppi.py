@@ -37,6 +37,13 @@ logarithmic grid (``TEMPERATURE_GRID``) whose weights have an effective sample
 size ``1 / sum w^2`` of at least ``target_ess * N`` and ``MIN_ESS`` (so the
 update averages several samples instead of collapsing to one).
 
+Stall escape (``stall_steps`` > 0, with ``target_ess``): the state keeps the
+smallest goal distance of the current state so far and the steps since it last
+fell by ``stall_progress``; after more than ``stall_steps`` such steps the
+effective-sample-size target is ``stall_ess`` instead of ``target_ess`` (sharper
+weights, larger steps) until the goal distance falls again. The phase of
+fast progress, where the robot passes obstacles, keeps ``target_ess``.
+
 Safety check (``safety_check``): before it is executed, the action is checked
 against the current cloud with the representation at ``check_substeps`` states
 evenly spaced over the step (``x + s/S u dt``, s = 1..S, so a thin wall crossed
@@ -138,6 +145,11 @@ class MPPIConfig:
       fill_edge: 0 = score the observed cloud as it is; > 0 = score a surface
         model of it with the points between neighbours up to this far apart
         (``ncedf.cloud``), m.
+      stall_steps: 0 = off; else the steps without progress after which the
+        ESS target is ``stall_ess`` (module docstring; needs ``target_ess``).
+      stall_ess: the ESS target of a stalled robot, in (0, 1].
+      stall_progress: the fall of the best goal distance that counts as
+        progress, m (or Frobenius units for a pose goal).
     """
 
     samples: int = 800
@@ -171,6 +183,9 @@ class MPPIConfig:
     check_margin: float = 0.0
     predict_motion: bool = False
     fill_edge: float = 0.0
+    stall_steps: int = 0
+    stall_ess: float = 0.01
+    stall_progress: float = 0.05
 
     def __post_init__(self):
         def num(name):
@@ -202,6 +217,16 @@ class MPPIConfig:
             raise ValueError(f"MPPIConfig.noise_smoothing must be in [0, 1), got {self.noise_smoothing}")
         if self.target_ess is not None and not 0 < num("target_ess") <= 1:
             raise ValueError(f"MPPIConfig.target_ess must be in (0, 1] or None, got {self.target_ess}")
+        if isinstance(self.stall_steps, bool) or not isinstance(self.stall_steps, (int, np.integer)):
+            raise ValueError(f"MPPIConfig.stall_steps must be an integer, got {self.stall_steps!r}")
+        if self.stall_steps < 0:
+            raise ValueError(f"MPPIConfig.stall_steps must be >= 0, got {self.stall_steps}")
+        if not 0 < num("stall_ess") <= 1:
+            raise ValueError(f"MPPIConfig.stall_ess must be in (0, 1], got {self.stall_ess}")
+        if num("stall_progress") <= 0:
+            raise ValueError(f"MPPIConfig.stall_progress must be > 0, got {self.stall_progress}")
+        if self.stall_steps and self.target_ess is None:
+            raise ValueError("MPPIConfig.stall_steps needs target_ess (the stall escape changes the ESS target)")
         if self.sampling not in SAMPLING:
             raise ValueError(f"MPPIConfig.sampling must be one of {', '.join(SAMPLING)}, got {self.sampling!r}")
         for name in ("broad_phase", "limit_action", "safety_check", "predict_motion"):
@@ -212,13 +237,17 @@ class MPPIConfig:
 
 
 class MPPIState(NamedTuple):
-    """Controller state (a pytree): nominal controls (H, M, 3) m/s, a PRNG key, and the
-    previous step's cloud (max_points, 3) m with its mask (max_points,) (all False at first)."""
+    """Controller state (a pytree): nominal controls (H, M, 3) m/s, a PRNG key, the
+    previous step's cloud (max_points, 3) m with its mask (max_points,) (all False at first),
+    the smallest goal distance of the current state so far (scalar, +inf at first) and the
+    steps since it last fell by ``stall_progress`` (scalar int32)."""
 
     nominal: jnp.ndarray
     key: jnp.ndarray
     previous: jnp.ndarray
     previous_mask: jnp.ndarray
+    best_goal: jnp.ndarray
+    stalled: jnp.ndarray
 
 
 class MPPIInfo(NamedTuple):
@@ -313,18 +342,18 @@ def sample_controls(config: MPPIConfig, nominal: jnp.ndarray, eps: jnp.ndarray) 
     return project_controls(nominal[None] + eps, config.control_bound)
 
 
-def temperature_for_ess(norm: jnp.ndarray, target: float) -> jnp.ndarray:
+def temperature_for_ess(norm: jnp.ndarray, target) -> jnp.ndarray:
     """The smallest lambda of ``TEMPERATURE_GRID`` whose weights ``exp(-norm / lambda)`` have an
     effective sample size >= ``max(target * N, MIN_ESS)`` (at most N; the largest lambda if none has).
 
     Args:
-      norm: (N,) costs normalised to [0, 1].
+      norm: (N,) costs normalised to [0, 1].  target: scalar in (0, 1] (may be traced).
     """
     grid = jnp.asarray(TEMPERATURE_GRID, norm.dtype)
     w = jnp.exp(-norm[None] / grid[:, None])  # (G, N); the minimum keeps weight 1
     ess = jnp.sum(w, axis=1) ** 2 / jnp.sum(w * w, axis=1)
     n = norm.shape[0]
-    ok = ess >= min(max(target * n, MIN_ESS), n)
+    ok = ess >= jnp.minimum(jnp.maximum(target * n, MIN_ESS), n)
     return jnp.where(jnp.any(ok), grid[jnp.argmax(ok)], grid[-1])
 
 
@@ -373,9 +402,11 @@ def limit_to_state_bounds(arc: jnp.ndarray, u: jnp.ndarray, dt: float, spec: Rob
 
 
 def init_state(spec: RobotSpec, config: MPPIConfig, key) -> MPPIState:
-    """Zero nominal controls (paper: the initial reference is zero), the key, no previous cloud."""
+    """Zero nominal controls (paper: the initial reference is zero), the key, no previous cloud,
+    no goal distance yet."""
     return MPPIState(jnp.zeros((config.horizon, spec.n_links, 3), jnp.float32), jnp.asarray(key),
-                     jnp.zeros((config.max_points, 3), jnp.float32), jnp.zeros(config.max_points, bool))
+                     jnp.zeros((config.max_points, 3), jnp.float32), jnp.zeros(config.max_points, bool),
+                     jnp.asarray(jnp.inf, jnp.float32), jnp.asarray(0, jnp.int32))
 
 
 def rollout_min_distances(config: MPPIConfig, shape, arcs, points, mask, frames=None):
@@ -455,8 +486,16 @@ def mppi_step(spec: RobotSpec, config: MPPIConfig, shape, state: MPPIState, arc,
     lo, hi = jnp.min(total), jnp.max(total)
     spread = hi - lo
     norm = jnp.where(spread > 0, (total - lo) / jnp.where(spread > 0, spread, 1.0), 0.0)
-    temperature = (jnp.asarray(c.temperature, norm.dtype) if c.target_ess is None
-                   else temperature_for_ess(norm, c.target_ess))
+    goal_now = goal_distance(forward_kinematics(arc, spec)[-1], goal)
+    progressed = goal_now < state.best_goal - c.stall_progress
+    best_goal = jnp.where(progressed, goal_now, state.best_goal)
+    stalled = jnp.where(progressed, 0, state.stalled + 1).astype(jnp.int32)
+    if c.target_ess is None:
+        temperature = jnp.asarray(c.temperature, norm.dtype)
+    elif c.stall_steps:
+        temperature = temperature_for_ess(norm, jnp.where(stalled > c.stall_steps, c.stall_ess, c.target_ess))
+    else:
+        temperature = temperature_for_ess(norm, c.target_ess)
     w = jnp.exp(-norm / temperature)
     w = w / jnp.sum(w)
     ess = 1.0 / jnp.sum(w * w)
@@ -505,7 +544,7 @@ def mppi_step(spec: RobotSpec, config: MPPIConfig, shape, state: MPPIState, arc,
         action_clearance=clearance,
         action_choice=choice,
     )
-    return action, MPPIState(next_nominal, key, observed, observed_mask), info
+    return action, MPPIState(next_nominal, key, observed, observed_mask, best_goal, stalled), info
 
 
 class MPPI:

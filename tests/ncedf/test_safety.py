@@ -161,9 +161,54 @@ def test_temperature_for_ess_is_the_smallest_grid_value_that_reaches_the_target(
 def test_new_options_are_validated():
     for field, value in [("sampling", "free"), ("noise_smoothing", 1.0), ("target_ess", 0.0), ("target_ess", 2.0),
                          ("safety_check", 1), ("check_substeps", 0), ("check_margin", -0.1),
-                         ("predict_motion", "yes")]:
+                         ("predict_motion", "yes"), ("stall_steps", -1), ("stall_steps", 2.0), ("stall_ess", 0.0),
+                         ("stall_progress", 0.0)]:
         with pytest.raises(ValueError, match=field):
-            MPPIConfig(**{field: value})
+            MPPIConfig(**{field: value, "target_ess": 0.02} if field != "target_ess" else {field: value})
+    with pytest.raises(ValueError, match="stall_steps needs target_ess"):
+        MPPIConfig(stall_steps=10)
+
+
+STALL_CONFIG = MPPIConfig(samples=400, horizon=5, max_points=512, broad_phase=False, target_ess=0.1,
+                          stall_steps=3, stall_ess=0.02, stall_progress=0.05)
+
+
+def _stall_step(best_goal, stalled):
+    """One step of a 2-link robot towards a goal 1.2 m from its tip, beside a few points, from a state
+    whose best goal distance and stall count are given; returns (tip distance to the goal, info, state)."""
+    spec = RobotSpec(2)
+    shape = make_shape("exact", spec)
+    goal = jnp.array([1.0, 0.5, 3.5], jnp.float32)
+    points = jnp.array([[0.8, 0.0, 2.0], [0.8, 0.3, 2.5], [-0.8, 0.0, 3.0]], jnp.float32)
+    state = init_state(spec, STALL_CONFIG, jax.random.PRNGKey(2))._replace(
+        best_goal=jnp.float32(best_goal), stalled=jnp.int32(stalled))
+    arc = jnp.full((2, 3), spec.length, jnp.float32)
+    _, new, info = mppi_step(spec, STALL_CONFIG, shape, state, arc, goal, points, jnp.ones(3, bool))
+    tip = np.array([0.0, 0.0, 2 * spec.length])  # the straight robot's tip
+    return float(np.linalg.norm(tip - np.asarray(goal))), info, new
+
+
+def test_stall_count_restarts_on_progress_and_grows_without_it():
+    d, _, new = _stall_step(np.inf, 0)  # the first step: progress from +inf
+    assert (float(new.best_goal), int(new.stalled)) == (pytest.approx(d, abs=1e-5), 0)
+    _, _, new = _stall_step(d + 0.051, 7)  # fell by more than stall_progress: progress
+    assert (float(new.best_goal), int(new.stalled)) == (pytest.approx(d, abs=1e-5), 0)
+    _, _, new = _stall_step(d + 0.049, 7)  # fell by less: no progress, the best is kept
+    assert (float(new.best_goal), int(new.stalled)) == (pytest.approx(d + 0.049, abs=1e-5), 8)
+
+
+def test_a_stalled_robot_gets_the_sharper_temperature():
+    d = _stall_step(np.inf, 0)[0]
+    # The same samples and costs (same key and cloud); only the stall count differs.
+    infos = {stalled: _stall_step(d, stalled)[1] for stalled in (1, 2, 3, 9)}
+    n = STALL_CONFIG.samples
+    for stalled, info in infos.items():  # the count after the step is stalled + 1
+        target = STALL_CONFIG.stall_ess if stalled + 1 > STALL_CONFIG.stall_steps else STALL_CONFIG.target_ess
+        assert float(info.ess) >= target * n * (1 - 1e-4)
+    assert float(infos[1].temperature) == float(infos[2].temperature)  # counts 2, 3: not beyond stall_steps
+    assert float(infos[3].temperature) < float(infos[2].temperature)  # count 4: stalled
+    assert float(infos[3].ess) < STALL_CONFIG.target_ess * n  # sharper than the unstalled target allows
+    assert float(infos[9].temperature) == float(infos[3].temperature)
 
 
 def test_paper_and_release_presets_are_unchanged():
