@@ -492,10 +492,9 @@ def mppi_step(spec: RobotSpec, config: MPPIConfig, shape, state: MPPIState, arc,
     stalled = jnp.where(progressed, 0, state.stalled + 1).astype(jnp.int32)
     if c.target_ess is None:
         temperature = jnp.asarray(c.temperature, norm.dtype)
-    elif c.stall_steps:
-        temperature = temperature_for_ess(norm, jnp.where(stalled > c.stall_steps, c.stall_ess, c.target_ess))
     else:
-        temperature = temperature_for_ess(norm, c.target_ess)
+        target = jnp.where(stalled > c.stall_steps, c.stall_ess, c.target_ess) if c.stall_steps else c.target_ess
+        temperature = temperature_for_ess(norm, target)
     w = jnp.exp(-norm / temperature)
     w = w / jnp.sum(w)
     ess = 1.0 / jnp.sum(w * w)
