@@ -22,6 +22,7 @@ import pytest
 import ray
 
 from recorder import Recorder, load_run, load_runs
+from scenarios import manifest
 from scenarios.episode import EpisodeSettings, episode_name
 from scenarios.sweep import FINAL_OUTCOMES, JAX_CACHE, Recorded, main, read_complete, run_sweep, sweep_settings
 
@@ -75,12 +76,18 @@ def copy_of(swept, tmp_path):
     return out
 
 
+def episode_files(out: Path) -> list[Path]:
+    """The episodes' recordings in a sweep folder (not its manifest), sorted."""
+    return sorted(p for p in out.glob("*.mcap") if p.stem != manifest.STEM)
+
+
 def test_a_sweep_records_every_episode_and_counts_their_outcomes(swept):
     out, status, stdout, stderr = swept
     assert status == 0, stderr
     expected = {episode_name(tiny(e)) for e in range(ENVS)}
-    assert {p.stem for p in out.glob("*.mcap")} == expected and not list(out.glob("*.rrd"))
+    assert {p.stem for p in out.glob("*.mcap")} == expected | {manifest.STEM} and not list(out.glob("*.rrd"))
     runs, _ = load_runs(out)
+    runs = runs[runs["scenario"] != manifest.STEM]
     assert runs["complete"].all() and set(runs["outcome"]) <= set(FINAL_OUTCOMES)
     for path in runs["path"]:  # each recording holds the settings it is named after
         assert episode_name(EpisodeSettings.from_dict(load_run(path).meta["settings"])) == Path(path).stem
@@ -90,12 +97,12 @@ def test_a_sweep_records_every_episode_and_counts_their_outcomes(swept):
 
 def test_a_rerun_skips_every_complete_episode(swept):
     out, _, first_stdout, _ = swept
-    before = {p: p.stat().st_mtime_ns for p in out.glob("*.mcap")}
+    before = {p: p.stat().st_mtime_ns for p in episode_files(out)}
     status, stdout, stderr = cli([*TINY, "--max-steps", str(STEPS), "--envs", str(ENVS), "--workers", "1",
                                   "--out", str(out)])
     assert status == 0, stderr
     assert f"{ENVS} complete, 0 to run" in stderr
-    assert {p: p.stat().st_mtime_ns for p in out.glob("*.mcap")} == before
+    assert {p: p.stat().st_mtime_ns for p in episode_files(out)} == before
     assert table_counts(stdout) == table_counts(first_stdout)
 
 
@@ -128,7 +135,7 @@ def test_only_closed_recordings_with_a_final_outcome_count_as_complete(tmp_path,
 
 
 def test_a_corrupt_recording_is_run_again_and_a_failing_episode_stops_no_other(copy_of, capsys):
-    victim, *kept = sorted(copy_of.glob("*.mcap"))
+    victim, *kept = episode_files(copy_of)
     original, kept_mtimes = deterministic(victim), [p.stat().st_mtime_ns for p in kept]
     victim.write_bytes(victim.read_bytes()[: victim.stat().st_size // 2])
     missing = copy_of / "missing.stl"
