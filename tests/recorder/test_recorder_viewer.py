@@ -63,7 +63,9 @@ def proxy(tmp_path):
     port = free_port()
     proc = subprocess.Popen([RERUN, "--serve-grpc", "--bind", "127.0.0.1", "--port", str(port), "--save", str(saved)],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                            env={**os.environ, "RERUN_ANALYTICS": "0"})
+                            env={**os.environ, "RERUN_ANALYTICS": "0"},
+                            # SIGINT stops it (teardown), even if this process has it ignored or handled.
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.monotonic() + 20
     while not viewer.listening("127.0.0.1", port, timeout=0.2):
         assert proc.poll() is None and time.monotonic() < deadline, "rerun --serve-grpc did not start"
