@@ -86,8 +86,8 @@ target until it falls again) on seeds 4-9 (``--links 4 --seed0 4 --seeds 6``;
 ours: 2 of 6): ESS 1% 3 of 6, ESS 0.5% (``ours+stall``) 4 of 6, reach
 217-251, no collision; predicted obstacle motion 2 of 6. Over seeds 0-16 (a
 sweep with it in the preset) ``ours+stall`` had 12 successes (median reach
-221), 4 stuck and 1 collision (ours: 10 successes, 7 stuck): seed 3 at step 112, dodging sphere 0 the tip
-dropped 0.3 m in one step onto box 2's top, predicted clearance 0.32 m, exact
+221), 4 stuck and 1 collision (ours: 10 successes, 7 stuck): seed 3 at step
+112, dodging sphere 0 the tip dropped 0.3 m in one step onto box 2's top, predicted clearance 0.32 m, exact
 -0.008 m (a hole of its cloud). So it is not part of ``ours``: the larger
 steps that end the stalls find the holes of the sparse cloud.
 

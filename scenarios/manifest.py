@@ -31,9 +31,9 @@ def machine() -> dict:
             cpu = next(line.split(":", 1)[1].strip() for line in f if line.startswith("model name"))
     except (OSError, StopIteration):
         pass
-    return {"cpu": cpu, "cores": os.cpu_count(), "device": str(jax.devices()[0].platform),
-            "device_kind": jax.devices()[0].device_kind, "system": platform.platform(),
-            "versions": package_versions()}
+    device = jax.devices()[0]
+    return {"cpu": cpu, "cores": os.cpu_count(), "device": str(device.platform), "device_kind": device.device_kind,
+            "system": platform.platform(), "versions": package_versions()}
 
 
 def write_manifest(where: Path, experiment: str, command: str, settings: dict, *, quick: bool = False,
@@ -41,9 +41,10 @@ def write_manifest(where: Path, experiment: str, command: str, settings: dict, *
     """Write (or rewrite) ``where/experiment.mcap`` for ``experiment`` run by ``command``."""
     from recorder import Recorder
 
-    meta = {"run_id": f"{Path(where).name}/{STEM}", "scenario": STEM, "experiment": experiment, "quick": quick,
+    where = Path(where)
+    meta = {"run_id": f"{where.name}/{STEM}", "scenario": STEM, "experiment": experiment, "quick": quick,
             "budget": budget or {}, "settings": settings, "command": command,
             "date": datetime.datetime.now(datetime.UTC).isoformat(), "machine": machine()}
-    Path(where).mkdir(parents=True, exist_ok=True)
-    with Recorder(Path(where) / STEM, meta, ("mcap",), overwrite=True) as rec:
+    where.mkdir(parents=True, exist_ok=True)
+    with Recorder(where / STEM, meta, ("mcap",), overwrite=True) as rec:
         rec.finish({"outcome": "success", "steps": 0})

@@ -274,7 +274,7 @@ def test_recycled_workers_finish_the_sweep(swept, tmp_path):
         pytest.fail("the sweep hung after its first worker was recycled")
     assert proc.returncode == 0, stderr
     assert all(read_complete(out / episode_name(tiny(e, max_steps=3)), ("mcap",)) for e in range(3))
-    manifest = load_run(out / "experiment.mcap").meta  # what made the folder, for the tables' captions
-    assert (manifest["scenario"], manifest["experiment"], manifest["settings"]["episodes"]) == ("experiment", "sweep", 5)
-    assert manifest["command"] == "python -m scenarios.sweep " + " ".join(argv)
-    assert manifest["machine"]["cores"] == os.cpu_count() and manifest["machine"]["versions"]["jax"]
+    meta = load_run(out / "experiment.mcap").meta  # what made the folder, for the tables' captions
+    assert (meta["scenario"], meta["experiment"], meta["settings"]["episodes"]) == ("experiment", "sweep", 5)
+    assert meta["command"] == "python -m scenarios.sweep " + " ".join(argv)
+    assert meta["machine"]["cores"] == os.cpu_count() and meta["machine"]["versions"]["jax"]
