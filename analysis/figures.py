@@ -159,9 +159,12 @@ def _draw(ax, snap, title: str, limits) -> None:
 
 
 def snapshot_strip(rec: Recordings, links: int):
-    """Figs. 5-7: the cluttered run with ``links`` links at the paper's steps and its reach step."""
+    """Figs. 5-7: a cluttered run with ``links`` links (the paper's cloud density) at the paper's steps and
+    its reach step."""
     runs = rec.scenario("cluttered")
-    runs = runs[runs["links"] == links] if not runs.empty else runs
+    if not runs.empty:
+        density = runs["world.density"] if "world.density" in runs else paper.TABLE4_DENSITY
+        runs = runs[(runs["links"] == links) & (density == paper.TABLE4_DENSITY)]
     run = _pick(runs)
     if run is None:
         return f"cluttered L{links}: skipped, no {links}-link cluttered recordings " \

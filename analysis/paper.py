@@ -26,5 +26,7 @@ TABLE3 = {
 }
 #: Table IV: links -> (MPPI step s mean, std, reach step).
 TABLE4 = {4: (0.0331, 0.0005, 158), 5: (0.0419, 0.0008, 82), 7: (0.0607, 0.0006, 43)}
+#: Table IV's scene: observed points per square metre of box face.
+TABLE4_DENSITY = 4.0
 #: Figs. 5-7: the time steps of the paper's snapshots, per link count (the last is its reach step).
 SNAPSHOT_STEPS = {4: (20, 52, 104, 158), 5: (16, 82), 7: (14, 43)}

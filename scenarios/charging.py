@@ -25,7 +25,7 @@ import jax
 import numpy as np
 
 from scenarios.cli import base_settings, make_parser, run_cli
-from scenarios.episode import EpisodeSettings, Scene, make_scene, require_fixed_goal, require_no_options
+from scenarios.episode import EpisodeSettings, Scene, make_scene, require_fixed_goal, scenario_options
 from scenarios.world import Box, MovingSphere, World
 
 WALL_CENTRE = (5.0, 0.0, 3.0)
@@ -98,7 +98,7 @@ def goal_pose(port: np.ndarray) -> np.ndarray:
 def build(settings: EpisodeSettings) -> Scene:
     """The charging scene for ``settings`` (no options; the goal is the port)."""
     require_fixed_goal(settings)
-    require_no_options(settings)
+    scenario_options(settings)
     world, port = make_world(settings.env_seed)
     return make_scene(settings, world, goal_pose(port), TOLERANCE, MAX_STEPS, port=port.tolist())
 

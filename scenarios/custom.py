@@ -14,12 +14,12 @@ goal_position, offset, density, tolerance.
 
 from __future__ import annotations
 
-import math
 import sys
 from pathlib import Path
 
 from scenarios.cli import base_settings, make_parser, run_cli
-from scenarios.episode import EpisodeSettings, Scene, make_scene, require_fixed_goal
+from scenarios.episode import (EpisodeSettings, Scene, make_scene, option_positive, option_vector,
+                               require_fixed_goal, scenario_options)
 from scenarios.world import CloudObstacle, World, load_obstacle
 
 DENSITY = 4.0
@@ -28,42 +28,17 @@ MAX_STEPS = 300
 OPTIONS = ("obstacles", "goal_position", "offset", "density", "tolerance")
 
 
-def parse_vector(name: str, text: str) -> tuple[float, float, float]:
-    """``"X,Y,Z"`` -> three finite floats; ValueError naming the option and text."""
-    try:
-        values = tuple(float(v) for v in text.split(","))
-    except ValueError:
-        values = ()
-    if len(values) != 3 or not all(math.isfinite(v) for v in values):
-        raise ValueError(f"{name} {text!r} is not three numbers X,Y,Z")
-    return values
-
-
-def parse_positive(name: str, text: str) -> float:
-    """A finite number > 0; ValueError naming the option and text."""
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not math.isfinite(value) or value <= 0:
-        raise ValueError(f"{name} {text!r} is not a number > 0")
-    return value
-
-
 def build(settings: EpisodeSettings) -> Scene:
     """The custom scene: options ``obstacles`` and ``goal_position`` required."""
     require_fixed_goal(settings)
-    options = dict(settings.options)
-    unknown = set(options) - set(OPTIONS)
-    if unknown:
-        raise ValueError(f"unknown custom-scenario options {sorted(unknown)}; known: {', '.join(OPTIONS)}")
+    options = scenario_options(settings, OPTIONS)
     for name in ("obstacles", "goal_position"):
         if name not in options:
             raise ValueError(f"the custom scenario needs the option {name!r}")
-    goal = parse_vector("goal", options["goal_position"])
-    offset = parse_vector("offset", options.get("offset", "0,0,0"))
-    density = parse_positive("density", options.get("density", str(DENSITY)))
-    tolerance = parse_positive("tolerance", options.get("tolerance", str(TOLERANCE)))
+    goal = option_vector("goal", options["goal_position"])
+    offset = option_vector("offset", options.get("offset", "0,0,0"))
+    density = option_positive("density", options.get("density", str(DENSITY)))
+    tolerance = option_positive("tolerance", options.get("tolerance", str(TOLERANCE)))
     obstacle = load_obstacle(options["obstacles"], offset)
     if isinstance(obstacle, CloudObstacle):
         world = World(clouds=(obstacle,), density=density)

@@ -243,10 +243,37 @@ def require_fixed_goal(settings: EpisodeSettings) -> None:
         raise ValueError(f"scenario {settings.scenario} has a fixed goal; goal {settings.goal!r} is for spheres")
 
 
-def require_no_options(settings: EpisodeSettings) -> None:
-    """For scenarios without options: refuse any."""
-    if settings.options:
-        raise ValueError(f"scenario {settings.scenario} takes no options, got {dict(settings.options)}")
+def scenario_options(settings: EpisodeSettings, known: tuple[str, ...] = ()) -> dict[str, str]:
+    """The scenario options of ``settings`` by name; ValueError naming any not in ``known``."""
+    options = dict(settings.options)
+    unknown = sorted(set(options) - set(known))
+    if unknown and not known:
+        raise ValueError(f"scenario {settings.scenario} takes no options, got {options}")
+    if unknown:
+        raise ValueError(f"unknown {settings.scenario}-scenario options {unknown}; known: {', '.join(known)}")
+    return options
+
+
+def option_vector(name: str, text: str) -> tuple[float, float, float]:
+    """``"X,Y,Z"`` -> three finite floats; ValueError naming the option and text."""
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) != 3 or not all(math.isfinite(v) for v in values):
+        raise ValueError(f"{name} {text!r} is not three numbers X,Y,Z")
+    return values
+
+
+def option_positive(name: str, text: str) -> float:
+    """A finite number > 0; ValueError naming the option and text."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not math.isfinite(value) or value <= 0:
+        raise ValueError(f"{name} {text!r} is not a number > 0")
+    return value
 
 
 # ------------------------------------------------------------------ geometry per step

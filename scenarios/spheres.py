@@ -25,7 +25,7 @@ import numpy as np
 from ncedf.geometry import robot_signed_distance
 from ncedf.robot import RobotSpec, end_effector_pose, sample_arc_lengths
 from scenarios.cli import base_settings, make_parser, run_cli
-from scenarios.episode import GOALS, EpisodeSettings, Scene, make_scene, require_no_options
+from scenarios.episode import GOALS, EpisodeSettings, Scene, make_scene, scenario_options
 from scenarios.world import MovingSphere, World
 
 N_SPHERES = 8
@@ -84,7 +84,7 @@ def make_environment(env_seed: int, spec: RobotSpec, goal: str = "fixed") -> tup
 
 def build(settings: EpisodeSettings) -> Scene:
     """The dynamic-spheres scene for ``settings`` (goal fixed or random; no options)."""
-    require_no_options(settings)
+    scenario_options(settings)
     spec = RobotSpec(settings.links)
     world, goal, attempts = make_environment(settings.env_seed, spec, settings.goal)
     return make_scene(settings, world, goal, TOLERANCE, MAX_STEPS, environment_attempts=attempts)

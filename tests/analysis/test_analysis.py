@@ -1,7 +1,7 @@
 """analysis/make_tables.py and make_figures.py on a small folder of real recordings.
 
 The folder: tiny dynamic-sphere episodes (16 rollouts, horizon 3; environments 0-4 end in a mix
-of outcomes), two tiny cluttered episodes, and two tiny networks trained and timed by
+of outcomes), three tiny cluttered episodes (one at a sparser cloud), and two tiny networks trained and timed by
 scenarios.reproduce (Table II: with and without the over-estimation loss). The CSV numbers are
 checked against values computed here from what the episodes returned (EpisodeResult) and from
 the saved weights evaluated again, not from the recordings the scripts read.
@@ -41,9 +41,10 @@ def sphere_settings(env: int) -> EpisodeSettings:
                            horizon=3, max_steps=25)
 
 
-def cluttered_settings(seed: int) -> EpisodeSettings:
+def cluttered_settings(seed: int, density: str | None = None) -> EpisodeSettings:
+    options = (("density", density),) if density else ()
     return EpisodeSettings("cluttered", 4, seed=seed, shape="spheres", controller="paper", samples=16, horizon=3,
-                           max_steps=4)
+                           max_steps=4, options=options)
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -63,7 +64,8 @@ def folder(tmp_path_factory, cache):
     """Recordings and what their runs returned: (folder, {stem: EpisodeResult}, datasets)."""
     runs = tmp_path_factory.mktemp("runs")
     results = {}
-    for settings in [sphere_settings(e) for e in range(SPHERE_ENVS)] + [cluttered_settings(s) for s in (0, 1)]:
+    for settings in [sphere_settings(e) for e in range(SPHERE_ENVS)] + [cluttered_settings(s) for s in (0, 1)] + [
+            cluttered_settings(0, density="2")]:
         sub = runs / settings.scenario
         sub.mkdir(exist_ok=True)
         name = episode_name(settings)
@@ -140,10 +142,10 @@ def test_table4_matches_the_episodes(folder, tables):
     _, results, _ = folder
     out, _ = tables
     df = pd.read_csv(out / "table4.csv")
-    assert len(df) == 1
-    row = df.iloc[0]
-    ours = [r for s, r in results.values() if s.scenario == "cluttered"]
-    assert row["links"] == 4 and row["episodes"] == len(ours)
+    assert sorted(df["density"]) == [2.0, 4.0]  # a denser or sparser cloud gets a row of its own
+    row = df.set_index("density").loc[4.0]
+    ours = [r for s, r in results.values() if s.scenario == "cluttered" and not s.options]
+    assert row["links"] == 4 and row["episodes"] == len(ours) == 2
     assert row["n_success"] == sum(r.outcome == "success" for r in ours)
     mean, std = pooled(ours)
     assert row["mppi_step_s_mean"] == pytest.approx(mean, rel=1e-4)

@@ -84,6 +84,8 @@ def test_a_signal_keeps_the_steps_so_far(cluttered_run, capsys, monkeypatch, sig
     (["--links", "four"], "four"),
     (["--mesh-every", "0"], "mesh-every"),
     (["--shape", "exact", "--model", "m.msgpack"], "m.msgpack"),
+    (["--density", "0"], "density '0'"),
+    (["--density", "many"], "many"),
 ])
 def test_bad_values_exit_2_with_one_line_and_write_nothing(tmp_path, capsys, argv, named):
     out = tmp_path / "new" / "rec"
@@ -140,6 +142,18 @@ def test_cluttered_scene_is_the_papers():
     assert abs(scene.observer.n_points - (4.0 * area + 60)) < 0.1 * (4.0 * area + 60)  # about 500
     assert scene.config.max_points >= scene.observer.n_points and scene.config.horizon == 7
     assert (tuple(scene.goal), scene.tolerance, scene.max_steps) == ((4.8, 0.0, 3.6), 0.4, 300)
+
+
+@pytest.mark.parametrize("density", [1.0, 16.0])
+def test_cluttered_density_option_sets_the_points_per_face(density):
+    scene = Episode(EpisodeSettings("cluttered", 4, 0, options=(("density", str(density)),))).scene
+    assert scene.world.density == density
+    faces = [a for _, (x, y, z) in cluttered.BOXES for a in (x * y, x * y, y * z, y * z, x * z, x * z)]
+    expected = sum(round(density * a) for a in faces) + len(cluttered.SPHERES) * cluttered.SPHERE_POINTS
+    assert scene.observer.n_points == expected
+    assert scene.config.max_points >= expected
+    with pytest.raises(ValueError, match=r"\['spacing'\].*known: density"):
+        Episode(EpisodeSettings("cluttered", 4, 0, options=(("spacing", "1"),)))
 
 
 @pytest.mark.parametrize("env_seed", [0, 1, 2])
