@@ -118,7 +118,7 @@ import numpy as np
 from tqdm import tqdm
 
 from ncedf.mppi import MPPI, MPPIConfig
-from scenarios.episode import Episode, EpisodeSettings
+from scenarios.episode import Episode, EpisodeSettings, option_positive
 from scenarios.presets import PRESETS
 
 #: name -> (preset, MPPIConfig fields changed). ``paper`` also takes ``ours``'s sizes (see ``sizes_of``).
@@ -182,11 +182,12 @@ def wilson(k: int, n: int, z: float = Z95) -> tuple[float, float]:
 def episodes(args) -> list[tuple[str, EpisodeSettings]]:
     """(group, settings) of every episode a variant runs (controller filled in per variant)."""
     out = []
+    options = (("density", str(args.density)),) if args.density else ()
     if "cluttered" in args.scenarios:
         for links in args.links:
             for seed in range(args.seed0, args.seed0 + args.seeds):
                 out.append((f"cluttered L{links}", EpisodeSettings("cluttered", links, seed,
-                                                                   max_steps=args.max_steps)))
+                                                                   max_steps=args.max_steps, options=options)))
     if "spheres" in args.scenarios:
         for goal in args.goals:
             for env in range(args.env0, args.env0 + args.envs):
@@ -317,6 +318,13 @@ def positive(text: str) -> int:
     return value
 
 
+def positive_float(text: str) -> float:
+    try:
+        return option_positive("density", text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], epilog=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -330,6 +338,8 @@ def main(argv=None) -> int:
                    help="cluttered link counts (default 4,5,7)")
     p.add_argument("--seeds", type=positive, default=3, help="cluttered controller seeds per link count (default 3)")
     p.add_argument("--seed0", type=int, default=0, help="first controller seed (default 0)")
+    p.add_argument("--density", type=positive_float,
+                   help="cluttered: observed points per m^2 of box face (default: the paper's 4)")
     p.add_argument("--envs", type=positive, default=10, help="spheres environments per goal kind (default 10)")
     p.add_argument("--env0", type=int, default=0, help="first spheres environment (default 0)")
     p.add_argument("--goals", default="fixed", type=lambda t: parse_list(t, str, "goal", ("fixed", "random")),
