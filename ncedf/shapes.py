@@ -36,7 +36,6 @@ from typing import NamedTuple, Protocol, runtime_checkable
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from ncedf.geometry import (
     link_signed_distance,

@@ -110,7 +110,7 @@ def test_a_sparse_wall_hides_from_the_raw_cloud_but_not_from_the_surface_model()
     spec = RobotSpec(1)
     arc = jnp.asarray([[1.7, 2.15, 2.15]], jnp.float32)
     tip = np.asarray(forward_kinematics(arc, spec))[-1]
-    e1, e2, normal, centre = tip[:3, 0], tip[:3, 1], tip[:3, 2], tip[:3, 3] - 0.3 * tip[:3, 2]
+    e1, e2, centre = tip[:3, 0], tip[:3, 1], tip[:3, 3] - 0.3 * tip[:3, 2]
     k = np.arange(-3, 3) + 0.5
     a, b = (x.ravel() for x in np.meshgrid(0.8 * k, 0.8 * k))
     wall = (centre + a[:, None] * e1 + b[:, None] * e2).astype(np.float32)
