@@ -9,7 +9,8 @@ A variant is the ``release`` or ``ours`` preset of ``scenarios.presets`` with
 some MPPIConfig fields changed (``VARIANTS``): ``ours`` with one of its changes
 turned off (``ours-X``) or a candidate it leaves out turned on (``ours+X``:
 low-pass noise, predicted obstacle motion, the surface model of the cloud with
-and without a larger check margin, the stall escape), ``release`` with ours's sampling,
+and without a larger check margin, the stall escape, the per-state broad phase),
+``release`` with ours's sampling,
 and ``paper`` at ``ours``'s rollouts and horizon (the reference of the solver
 time). Every variant runs the same
 episodes (``scenarios.episode``, no recording): the cluttered scene for each of
@@ -134,6 +135,7 @@ VARIANTS: dict[str, tuple[str, dict]] = {
     "ours+smooth": ("ours", {"noise_smoothing": 0.6}),
     "ours+motion": ("ours", {"predict_motion": True}),
     "ours+stall": ("ours", {"stall_steps": 30, "stall_ess": 0.005}),
+    "ours+state": ("ours", {"selection": "state"}),
     "paper": ("paper", {}),
 }
 #: z for a 95% interval.

@@ -89,7 +89,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ncedf.broad_phase import rollout_min_distances_broad, rollout_min_distances_brute
+from ncedf.broad_phase import SELECTIONS, rollout_min_distances_broad, rollout_min_distances_brute
 from ncedf.cloud import fill_weights, interpolate
 from ncedf.robot import RobotSpec, forward_kinematics, validate_state
 from ncedf.shapes import Shape
@@ -123,10 +123,16 @@ class MPPIConfig:
       broad_phase: evaluate the representation on broad-phase pairs only
         (``ncedf.broad_phase``); False = brute force over every point.
       k1, k2, capsule_segments: broad-phase sizes (see ``ncedf.broad_phase``):
-        K1 candidate points per (horizon step, link), K2 (link, point) pairs
-        evaluated per rollout state, sub-arc capsules per link. K2 = 12 keeps
-        >= 99.9% of the rollout minima equal to brute force at the paper
-        setting (``bench/mppi_step.py``); the network cost grows with it.
+        K1 candidate points per (horizon step, link) of selection ``mean``, K2
+        (link, point) pairs evaluated per rollout state, sub-arc capsules per
+        link. K2 = 12 keeps >= 99.9% of the rollout minima equal to brute force
+        at the paper setting (``bench/mppi_step.py``); the network cost grows with it.
+      selection: the broad phase's candidates: "mean" (per horizon step around
+        the rollouts' average: fast, over-estimates distances of rollouts far
+        from it) or "state" (per rollout state from groups of the cloud; see
+        ``ncedf.broad_phase`` and ``bench/broad_phase.py``).
+      groups, group_size: selection "state": (link, group) pairs kept per
+        rollout state, and points per group.
       shift_fill: "last" (repeat the last control) or "zero" after the shift.
       limit_action: scale the executed action so the next state stays within
         the arc-length limits (rollouts keep the soft state cost).
@@ -173,6 +179,9 @@ class MPPIConfig:
     k1: int = 128
     k2: int = 12
     capsule_segments: int = 2
+    selection: str = "mean"
+    groups: int = 32
+    group_size: int = 16
     shift_fill: str = "last"
     limit_action: bool = True
     sampling: str = "project"
@@ -196,7 +205,8 @@ class MPPIConfig:
                 raise ValueError(f"MPPIConfig.{name} must be finite, got {value!r}")
             return value
 
-        for name in ("samples", "horizon", "max_points", "k1", "k2", "capsule_segments", "check_substeps"):
+        for name in ("samples", "horizon", "max_points", "k1", "k2", "capsule_segments", "groups", "group_size",
+                     "check_substeps"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
                 raise ValueError(f"MPPIConfig.{name} must be an integer, got {value!r}")
@@ -227,6 +237,8 @@ class MPPIConfig:
             raise ValueError(f"MPPIConfig.stall_progress must be > 0, got {self.stall_progress}")
         if self.stall_steps and self.target_ess is None:
             raise ValueError("MPPIConfig.stall_steps needs target_ess (the stall escape changes the ESS target)")
+        if self.selection not in SELECTIONS:
+            raise ValueError(f"MPPIConfig.selection must be one of {', '.join(SELECTIONS)}, got {self.selection!r}")
         if self.sampling not in SAMPLING:
             raise ValueError(f"MPPIConfig.sampling must be one of {', '.join(SAMPLING)}, got {self.sampling!r}")
         for name in ("broad_phase", "limit_action", "safety_check", "predict_motion"):
@@ -421,7 +433,7 @@ def rollout_min_distances(config: MPPIConfig, shape, arcs, points, mask, frames=
         return per_step(arcs, frames, points)[..., 0].T
     if config.broad_phase:
         return rollout_min_distances_broad(shape, arcs, points, mask, config.k1, config.k2, config.capsule_segments,
-                                           frames)
+                                           frames, config.selection, config.groups, config.group_size)
     return rollout_min_distances_brute(shape, arcs, points, mask)
 
 
