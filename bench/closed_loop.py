@@ -92,6 +92,26 @@ sweep with it in the preset) ``ours+stall`` had 12 successes (median reach
 -0.008 m (a hole of its cloud). So it is not part of ``ours``: the larger
 steps that end the stalls find the holes of the sparse cloud.
 
+A denser observation (``--density 16``, 16 points per m^2 of box face; the
+paper's is 4). ``ours`` over 20 seeds per link count (``python -m
+scenarios.sweep --scenario cluttered --links 4,5,7 --seeds 20 --option
+density=16``): L4 1/20 (19 stuck 1.3-1.7 m short, holding 0.45-0.6 m from boxes
+0 and 2), L5 14/20 and 6 collisions, L7 20/20 (median reach 19). The denser
+cloud shows the robot its true clearance: at 4 points per m^2 the stuck and
+successful 4-link runs held 0.25-0.38 m from the nearest observed point but
+0.08-0.26 m from the true surface, so the sparse cloud's holes are what let it
+through. The 5-link collisions come from the broad phase: its 128 candidates
+per (step, link) around the rollouts' average cover a quarter of the area at
+this density, and near the boxes 3-5% of the rollout distances are
+over-estimated by more than 2 cm, by up to 1.2 m (``bench/broad_phase.py``).
+With the per-state selection (``ours+state``), L5 seeds 0-9: 4 successes, 6
+stuck, no collision (``ours``: 7 and 3 collisions); with 512 candidates per
+(step, link), seeds 5-7: 2 successes, 1 stuck, no collision (``ours``: 3
+collisions). Weaker repulsion to let the 4-link robot through
+(``ours:w_coll=0.4:w_coll_terminal=0.4``, seeds 0-3): 1 success (step 160) and
+3 collisions; with ``check_margin=0.1`` as well: 3 successes (median 164), 1
+stuck, no collision; ``w_coll=0.6``: 1 success, 3 collisions.
+
 ``--timing 8`` with the surface model: L4 131.4 / 111.1 ms (1.18), L7 58.5 /
 41.2 (1.42), spheres 84.3 / 80.8 (1.04) (before it: L4 64.8 / 62.8 (1.03),
 L5 147.8 / 136.3 (1.08), L7 47.8 / 47.9 (1.00), spheres 87.4 / 85.1 (1.03),

@@ -36,7 +36,12 @@ avoids that collision but makes 4 links collide or stall
 (``bench/closed_loop.py`` docstring), so it is not part of ``ours``. Nor is
 the stall escape (``MPPIConfig.stall_steps``): over 4-link seeds 0-16 it
 turns 10 successes and 7 stalls into 12 successes, 4 stalls and a collision
-(its larger steps hit a hole of box 2's cloud).
+(its larger steps hit a hole of box 2's cloud). All presets use the broad
+phase's default selection (``MPPIConfig.selection`` "mean"); at 16 observed
+points per m^2 it over-estimates some rollout distances and ``ours`` collides
+in 6 of 20 5-link seeds, while the per-state selection avoids those
+collisions but stalls more and costs 2-3x the time (``bench/closed_loop.py``
+docstring, ``bench/broad_phase.py``).
 
 All share the weights (12, 1.1, 50), epsilon 0.01 and the safety margin 0.05 m;
 when spheres are observed by their centres, the sphere radius is added to the
