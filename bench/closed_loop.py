@@ -105,7 +105,10 @@ per (step, link) around the rollouts' average cover a quarter of the area at
 this density, and near the boxes 3-5% of the rollout distances are
 over-estimated by more than 2 cm, by up to 1.2 m (``bench/broad_phase.py``).
 With the per-state selection (``ours+state``), L5 seeds 0-9: 4 successes, 6
-stuck, no collision (``ours``: 7 and 3 collisions); with 512 candidates per
+stuck, no collision (``ours``: 7 and 3 collisions). At the paper's 4 points per
+m^2, ``ours+state`` over 20 seeds: L4 8/20 (12 stuck, median reach 243), L5
+20/20 (median 44, no collision: ``ours`` collides with seed 3), L7 20/20 (18),
+at about twice ``ours``'s solver time (L5 267 ms, L7 91 ms per step here); with 512 candidates per
 (step, link), seeds 5-7: 2 successes, 1 stuck, no collision (``ours``: 3
 collisions). Weaker repulsion to let the 4-link robot through
 (``ours:w_coll=0.4:w_coll_terminal=0.4``, seeds 0-3): 1 success (step 160) and
