@@ -97,8 +97,7 @@ def timed(fn, arg, repeats: int) -> tuple[np.ndarray, float]:
 def compare(density: float, links: int, shape_name: str, args, model) -> list[dict]:
     """One row per selection (``ncedf.broad_phase.SELECTIONS``) against brute force on the same rollouts."""
     spec = RobotSpec(links)
-    world = dataclasses.replace(cluttered.make_world(), density=density)
-    cloud = make_observer(world, args.seed).observe(0.0)
+    cloud = make_observer(cluttered.make_world(density), args.seed).observe(0.0)
     config = mppi_config("ours", "cluttered", links, n_points=len(cloud))
     points = jnp.zeros((config.max_points, 3), jnp.float32).at[: len(cloud)].set(jnp.asarray(cloud, jnp.float32))
     mask = jnp.arange(config.max_points) < len(cloud)

@@ -105,12 +105,12 @@ per (step, link) around the rollouts' average cover a quarter of the area at
 this density, and near the boxes 3-5% of the rollout distances are
 over-estimated by more than 2 cm, by up to 1.2 m (``bench/broad_phase.py``).
 With the per-state selection (``ours+state``), L5 seeds 0-9: 4 successes, 6
-stuck, no collision (``ours``: 7 and 3 collisions). At the paper's 4 points per
-m^2, ``ours+state`` over 20 seeds: L4 8/20 (12 stuck, median reach 243), L5
-20/20 (median 44, no collision: ``ours`` collides with seed 3), L7 20/20 (18),
-at about twice ``ours``'s solver time (L5 267 ms, L7 91 ms per step here); with 512 candidates per
+stuck, no collision (``ours``: 7 and 3 collisions); with 512 candidates per
 (step, link), seeds 5-7: 2 successes, 1 stuck, no collision (``ours``: 3
-collisions). Weaker repulsion to let the 4-link robot through
+collisions). At the paper's 4 points per m^2, ``ours+state`` over 20 seeds: L4
+8/20 (12 stuck, median reach 243), L5 20/20 (median 44, no collision:
+``ours`` collides with seed 3), L7 20/20 (18), at about twice ``ours``'s
+solver time (L5 267 ms, L7 91 ms per step here). Weaker repulsion to let the 4-link robot through
 (``ours:w_coll=0.4:w_coll_terminal=0.4``, seeds 0-3): 1 success (step 160) and
 3 collisions; ``w_coll=0.6``: 1 success, 3 collisions. With
 ``check_margin=0.1`` as well (``ours:w_coll=0.4:w_coll_terminal=0.4:check_margin=0.1``)
@@ -348,7 +348,7 @@ def positive(text: str) -> int:
     return value
 
 
-def positive_float(text: str) -> float:
+def density_arg(text: str) -> float:
     try:
         return option_positive("density", text)
     except ValueError as exc:
@@ -368,7 +368,7 @@ def main(argv=None) -> int:
                    help="cluttered link counts (default 4,5,7)")
     p.add_argument("--seeds", type=positive, default=3, help="cluttered controller seeds per link count (default 3)")
     p.add_argument("--seed0", type=int, default=0, help="first controller seed (default 0)")
-    p.add_argument("--density", type=positive_float,
+    p.add_argument("--density", type=density_arg,
                    help="cluttered: observed points per m^2 of box face (default: the paper's 4)")
     p.add_argument("--envs", type=positive, default=10, help="spheres environments per goal kind (default 10)")
     p.add_argument("--env0", type=int, default=0, help="first spheres environment (default 0)")

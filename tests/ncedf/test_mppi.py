@@ -14,6 +14,7 @@ from ncedf.geometry import robot_signed_distance
 from ncedf.mppi import MPPI, MPPIConfig, limit_to_state_bounds, mppi_step, project_controls
 from ncedf.robot import InvalidStateError, RobotSpec, end_effector_pose, project_state, sample_arc_lengths
 from ncedf.shapes import make_shape
+from scenarios.world import Box, World, make_observer
 
 SPEC = RobotSpec(4)
 SMALL = MPPIConfig(samples=64, horizon=10, max_points=64)
@@ -152,27 +153,16 @@ def test_broad_phase_matches_brute_force_on_exact_geometry():
     assert np.all(np.asarray(bp) >= np.asarray(bf) - 1e-5)  # a subset never finds a nearer point
 
 
-def _box_surface_cloud(centre, size, density, rng):
-    """Uniform points on the faces of an axis-aligned box, ``round(density * area)`` per face."""
-    centre, half = np.asarray(centre, float), np.asarray(size, float) / 2
-    faces = []
-    for axis in range(3):
-        u, v = [a for a in range(3) if a != axis]
-        n = round(density * 4 * half[u] * half[v])
-        for sign in (-1.0, 1.0):
-            p = np.empty((n, 3))
-            p[:, axis] = centre[axis] + sign * half[axis]
-            p[:, u] = centre[u] + rng.uniform(-half[u], half[u], n)
-            p[:, v] = centre[v] + rng.uniform(-half[v], half[v], n)
-            faces.append(p)
-    return np.concatenate(faces)
+def _box_surface_cloud(centre, size, density, seed):
+    """A box's faces observed as a scenario observes them: ``round(density * area)`` uniform points per face."""
+    return make_observer(World(boxes=(Box(centre, size),), density=density), seed).observe(0.0)
 
 
 def test_state_selection_keeps_the_nearest_points_of_spread_rollouts_beside_a_dense_cloud():
     """Wide rollouts beside a densely observed box (16 points per m^2): the nearest points of the
     rollouts far from the average lie far from the points nearest to the average rollout."""
     shape = make_shape("exact", SPEC)
-    cloud = _box_surface_cloud((1.3, 0.0, 5.0), (0.8, 3.0, 4.0), 16.0, np.random.default_rng(0))
+    cloud = _box_surface_cloud((1.3, 0.0, 5.0), (0.8, 3.0, 4.0), 16.0, seed=0)
     pts = jnp.asarray(np.concatenate([cloud, np.zeros((32, 3))]), jnp.float32)  # 32 masked points
     mask = jnp.arange(len(pts)) < len(cloud)
     u = project_controls(0.6 * jax.random.normal(jax.random.PRNGKey(5), (64, 12, 4, 3)), 0.3)
@@ -211,7 +201,7 @@ def test_block_smallest_keeps_the_row_minimum_and_is_exact_with_a_block_per_entr
 
 def test_cloud_groups_hold_every_real_point_once_within_their_spheres():
     rng = np.random.default_rng(3)
-    pts = _box_surface_cloud((0.0, 0.0, 0.0), (2.0, 3.0, 1.0), 30.0, rng)
+    pts = _box_surface_cloud((0.0, 0.0, 0.0), (2.0, 3.0, 1.0), 30.0, seed=3)
     mask = rng.random(len(pts)) > 0.1
     index, valid, centre, radius = map(np.asarray, cloud_groups(jnp.asarray(pts, jnp.float32), jnp.asarray(mask), 16))
     assert index.shape == (-(-len(pts) // 16), 16)
