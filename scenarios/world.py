@@ -340,9 +340,16 @@ class World:
 
     def sphere_centres(self, t: float) -> np.ndarray:
         """(S, 3) sphere centres at time t, m."""
+        return self.sphere_track(np.asarray([t], np.float64))[0]
+
+    def sphere_track(self, times: np.ndarray) -> np.ndarray:
+        """(T, S, 3) sphere centres at each of ``times`` (T,) s, m."""
+        times = np.asarray(times, np.float64)
         if not self.spheres:
-            return np.zeros((0, 3))
-        return np.stack([s.position(t) for s in self.spheres])
+            return np.zeros((len(times), 0, 3))
+        centre, velocity = (np.array([getattr(s, name) for s in self.spheres]) for name in ("centre", "velocity"))
+        half = np.array([s.half_period for s in self.spheres])
+        return centre[None] + _triangle_wave(times[:, None], half[None])[..., None] * velocity[None]
 
     @functools.cached_property
     def max_speed(self) -> float:

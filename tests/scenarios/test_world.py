@@ -158,6 +158,19 @@ def test_periodic_sphere_motion_is_the_triangle_wave():
     assert MovingSphere(c, 0.5).position(3.0).tolist() == c.tolist()
 
 
+def test_sphere_track_follows_each_sphere():
+    spheres = (MovingSphere((1.0, -2.0, 0.5), 0.5, (0.3, 0.0, -0.4), 2.5), MovingSphere((0.0, 1.0, 2.0), 0.7),
+               MovingSphere((-1.0, 0.0, 3.0), 0.2, (0.0, 1.0, 0.0)))
+    world = World(spheres=spheres)
+    times = np.array([0.0, 0.7, 2.5, 3.1, 5.0, 9.9])
+    track = world.sphere_track(times)
+    assert track.shape == (len(times), 3, 3)
+    for i, t in enumerate(times):
+        np.testing.assert_allclose(track[i], np.stack([s.position(t) for s in spheres]), atol=1e-12)
+        np.testing.assert_allclose(world.sphere_centres(t), track[i], atol=1e-12)
+    assert World().sphere_track(times).shape == (len(times), 0, 3)
+
+
 @pytest.mark.parametrize("make, field", [
     (lambda: Box((0, 0, 0), (1, -1, 1)), "size"),
     (lambda: Box((0, 0, math.nan), (1, 1, 1)), "centre"),

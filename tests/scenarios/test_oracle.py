@@ -1,0 +1,72 @@
+"""Tests of scenarios.oracle against independent truths.
+
+Truths: a sphere that reaches the robot's base disk within the first step
+(every configuration contains that disk, so every motion collides); the exact
+distance of scenarios.world at each state of a found motion; the straight
+robot's own collision where the found motion escapes; the control set's
+bounds and zero sums on the found motion's steps.
+"""
+
+from __future__ import annotations
+
+import jax
+import numpy as np
+import pytest
+
+from ncedf.robot import RobotSpec, end_effector_pose, validate_state
+from scenarios.oracle import OracleConfig, plan_reach
+from scenarios.world import Box, MovingSphere, World, true_min_distance
+
+SPEC = RobotSpec(2)
+DT = 0.05
+SMALL = OracleConfig(starts=8, iterations=150)
+#: A goal the two-link tip (straight at (0, 0, 4)) reaches by bending towards +x.
+GOAL = (1.5, 0.0, 3.3)
+TOLERANCE = 0.2
+
+
+def test_sphere_through_the_base_within_one_step_leaves_no_motion():
+    # gap 0.05 m to the base disk at t = 0, closing at 2 m/s: overlap before t = dt
+    world = World(spheres=(MovingSphere((0.0, 0.0, -0.55), 0.5, (0.0, 0.0, 2.0)),))
+    result = plan_reach(world, SPEC, GOAL, TOLERANCE, [4, 8], DT, jax.random.PRNGKey(0), SMALL)
+    assert result.reach_step is None and result.arcs is None and np.isnan(result.min_distance)
+    free = plan_reach(World(), SPEC, GOAL, TOLERANCE, [4, 8], DT, jax.random.PRNGKey(0), SMALL)
+    assert free.reach_step is not None and free.min_distance == np.inf, "without the sphere the goal is reached"
+
+
+def test_found_motion_escapes_a_sphere_that_hits_the_still_robot():
+    # a sphere coming at the straight robot's upper link from -x at 1.5 m/s
+    world = World(spheres=(MovingSphere((-1.4, 0.0, 3.0), 0.5, (1.5, 0.0, 0.0)),))
+    straight = np.asarray(SPEC.straight_state(), np.float64)
+    still = [true_min_distance(world, SPEC, straight, k * DT) for k in range(12)]
+    assert min(still) < 0, "the still robot must be hit for this test to mean anything"
+
+    result = plan_reach(world, SPEC, GOAL, TOLERANCE, [6, 10], DT, jax.random.PRNGKey(1), SMALL)
+    assert result.reach_step is not None and result.horizon in (6, 10)
+    arcs = result.arcs
+    assert arcs.shape == (result.reach_step + 1, SPEC.n_links, 3)
+    for k, arc in enumerate(arcs):
+        validate_state(arc, SPEC)
+        assert true_min_distance(world, SPEC, arc, k * DT) >= result.min_distance - 1e-6 >= -1e-6
+    tip = np.asarray(end_effector_pose(arcs[-1].astype(np.float32), SPEC))[:3, 3]
+    assert np.linalg.norm(tip - np.asarray(GOAL)) <= TOLERANCE + 1e-5
+    earlier = [np.linalg.norm(np.asarray(end_effector_pose(a.astype(np.float32), SPEC))[:3, 3] - GOAL)
+               for a in arcs[:-1]]
+    assert min(earlier, default=np.inf) > TOLERANCE, "reach_step must be the first state within the tolerance"
+    rates = np.diff(arcs, axis=0) / DT  # (T, M, 3)
+    np.testing.assert_allclose(rates.sum(-1), 0.0, atol=1e-4)
+    assert np.abs(rates).max() <= 2 * SMALL.control_bound + 1e-4
+
+
+def test_bad_input_is_named():
+    with pytest.raises(ValueError, match="starts"):
+        OracleConfig(starts=0)
+    with pytest.raises(ValueError, match="softness"):
+        OracleConfig(softness=0.0)
+    boxed = World(boxes=(Box((3.0, 0.0, 1.0), (1.0, 1.0, 1.0)),))
+    with pytest.raises(ValueError, match="static obstacles"):
+        plan_reach(boxed, SPEC, GOAL, TOLERANCE, [4], DT, jax.random.PRNGKey(0), SMALL)
+    with pytest.raises(ValueError, match="position goal"):
+        plan_reach(World(), SPEC, np.eye(4), TOLERANCE, [4], DT, jax.random.PRNGKey(0), SMALL)
+    with pytest.raises(ValueError, match="horizons"):
+        plan_reach(World(), SPEC, GOAL, TOLERANCE, [0], DT, jax.random.PRNGKey(0), SMALL)
