@@ -28,10 +28,23 @@ terminal weights, 0 by default):
 * state: ``w_state * sum over links and chambers of (l_min - l)_+ + (l - l_max)_+``.
 * optional (release): terminal goal / collision weights at ``x^H``, and a
   control-perturbation cost ``w_perturbation * sum_k U_k . eps_k / sigma^2``.
+* ``goal_reach``: the running goal term of state ``x^k`` is
+  ``w_goal * min_{j <= k} d(x^j)`` (the terminal term keeps ``d(x^H)``). An
+  episode ends when the goal is first reached, so a rollout that reaches it
+  and then drifts (its noise goes on after the reach) is not charged for the
+  drift; without it, the drift of the later states blurs the ranking of the
+  first controls near the goal and the robot slows down there.
 
 Update: ``C~ = (C - min C) / (max C - min C)``, ``w = exp(-C~ / lambda)``,
 ``U <- (1 - alpha_u) U + alpha_u sum_j w_j u^j / sum_j w_j``; the first control is
 executed, the plan is shifted by one step (the last control repeated, or zero).
+The samples ``u^j`` are bounded (clipped or scaled, ``sampling``), so their
+mean lies strictly inside the bound even when every good sample saturates it:
+a plan at the bound is pulled back inside at every step. With
+``update_unclipped`` the plan is ``U <- (1 - alpha_u) U + alpha_u sum_j w_j
+(U + eps^j)``, kept within ``+-NOMINAL_SLACK * control_bound``, and bounded
+only when rolled out and executed, so a saturated plan stays saturated (the
+robot moves at its top rates when that is best).
 With ``target_ess`` set, lambda is not fixed: it is the smallest of a
 logarithmic grid (``TEMPERATURE_GRID``) whose weights have an effective sample
 size ``1 / sum w^2`` of at least ``target_ess * N`` and ``MIN_ESS`` (so the
@@ -101,6 +114,8 @@ TEMPERATURE_GRID = tuple(float(x) for x in np.logspace(-4, 1, 64))
 #: Least effective sample size asked for with ``MPPIConfig.target_ess`` (few rollouts would
 #: otherwise execute one noisy sample), samples.
 MIN_ESS = 4.0
+#: Bound of the unclipped plan (``MPPIConfig.update_unclipped``), in units of ``control_bound``.
+NOMINAL_SLACK = 2.0
 #: Scales of the MPPI action among the safety check's candidates (before "no motion").
 CHECK_SCALES = (0.5, 0.25)
 
@@ -156,6 +171,11 @@ class MPPIConfig:
       stall_ess: the ESS target of a stalled robot, in (0, 1].
       stall_progress: the fall of the best goal distance that counts as
         progress, m (or Frobenius units for a pose goal).
+      goal_reach: charge each running state the closest goal distance of
+        its rollout so far instead of its own (module docstring).
+      update_unclipped: update the plan with the weighted mean of the
+        unclipped samples and bound it only when rolled out and executed
+        (module docstring).
     """
 
     samples: int = 800
@@ -195,6 +215,8 @@ class MPPIConfig:
     stall_steps: int = 0
     stall_ess: float = 0.01
     stall_progress: float = 0.05
+    goal_reach: bool = False
+    update_unclipped: bool = False
 
     def __post_init__(self):
         def num(name):
@@ -241,7 +263,7 @@ class MPPIConfig:
             raise ValueError(f"MPPIConfig.selection must be one of {', '.join(SELECTIONS)}, got {self.selection!r}")
         if self.sampling not in SAMPLING:
             raise ValueError(f"MPPIConfig.sampling must be one of {', '.join(SAMPLING)}, got {self.sampling!r}")
-        for name in ("broad_phase", "limit_action", "safety_check", "predict_motion"):
+        for name in ("broad_phase", "limit_action", "safety_check", "predict_motion", "goal_reach", "update_unclipped"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"MPPIConfig.{name} must be a bool, got {getattr(self, name)!r}")
         if self.shift_fill not in ("last", "zero"):
@@ -347,11 +369,17 @@ def sample_noise(config: MPPIConfig, key, dims: tuple[int, ...], dtype) -> jnp.n
     return eps
 
 
+def bounded_controls(config: MPPIConfig, raw: jnp.ndarray) -> jnp.ndarray:
+    """Zero-sum rates within the bound (..., M, 3) from unbounded ones (``config.sampling``; with
+    release sampling the third raw rate is ignored)."""
+    if config.sampling == "release":
+        return release_controls(raw[..., :2], config.control_bound)
+    return project_controls(raw, config.control_bound)
+
+
 def sample_controls(config: MPPIConfig, nominal: jnp.ndarray, eps: jnp.ndarray) -> jnp.ndarray:
     """Sampled zero-sum rates (N, H, M, 3) from the nominal (H, M, 3) and noise (``config.sampling``)."""
-    if config.sampling == "release":
-        return release_controls(nominal[None, ..., :2] + eps[..., :2], config.control_bound)
-    return project_controls(nominal[None] + eps, config.control_bound)
+    return bounded_controls(config, nominal[None] + eps)
 
 
 def temperature_for_ess(norm: jnp.ndarray, target) -> jnp.ndarray:
@@ -489,7 +517,8 @@ def mppi_step(spec: RobotSpec, config: MPPIConfig, shape, state: MPPIState, arc,
 
     running = (jnp.arange(c.horizon) < c.horizon - 1).astype(arcs.dtype)  # x^1 .. x^{H-1}
     terminal = 1.0 - running  # x^H
-    c_goal = jnp.sum(goal_d * (c.w_goal * running + c.w_goal_terminal * terminal), axis=1)
+    goal_run = jax.lax.cummin(goal_d, axis=1) if c.goal_reach else goal_d
+    c_goal = jnp.sum(c.w_goal * running * goal_run + c.w_goal_terminal * terminal * goal_d, axis=1)
     c_coll = jnp.sum(coll * (c.w_coll * running + c.w_coll_terminal * terminal), axis=1)
     c_state = c.w_state * jnp.sum(viol * running, axis=1)
     c_pert = c.w_perturbation * jnp.sum(nominal[None] * eps, axis=(1, 2, 3)) / c.covariance
@@ -510,7 +539,12 @@ def mppi_step(spec: RobotSpec, config: MPPIConfig, shape, state: MPPIState, arc,
     w = jnp.exp(-norm / temperature)
     w = w / jnp.sum(w)
     ess = 1.0 / jnp.sum(w * w)
-    updated = (1.0 - c.alpha_u) * nominal + c.alpha_u * jnp.einsum("n,nhmc->hmc", w, u)
+    if c.update_unclipped:
+        raw = (1.0 - c.alpha_u) * nominal + c.alpha_u * jnp.einsum("n,nhmc->hmc", w, nominal[None] + eps)
+        raw = jnp.clip(raw, -NOMINAL_SLACK * c.control_bound, NOMINAL_SLACK * c.control_bound)
+        updated = bounded_controls(c, raw)
+    else:
+        raw = updated = (1.0 - c.alpha_u) * nominal + c.alpha_u * jnp.einsum("n,nhmc->hmc", w, u)
 
     best = jnp.argmin(total)
     action = updated[0]
@@ -533,8 +567,8 @@ def mppi_step(spec: RobotSpec, config: MPPIConfig, shape, state: MPPIState, arc,
         action, clearance = candidates[choice], clear[choice]
     elif c.limit_action:
         action = limit_to_state_bounds(arc, action, c.dt, spec)
-    fill = updated[-1:] if c.shift_fill == "last" else jnp.zeros_like(updated[-1:])
-    next_nominal = jnp.concatenate([updated[1:], fill], axis=0)
+    fill = raw[-1:] if c.shift_fill == "last" else jnp.zeros_like(raw[-1:])
+    next_nominal = jnp.concatenate([raw[1:], fill], axis=0)
 
     plan_arcs = jnp.concatenate([arc[None], arc[None] + c.dt * jnp.cumsum(updated, axis=0)], axis=0)
     plan = forward_kinematics(plan_arcs, spec)[:, -1, :3, 3]

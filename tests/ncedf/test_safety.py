@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from ncedf.geometry import robot_signed_distance
-from ncedf.mppi import (MIN_ESS, TEMPERATURE_GRID, MPPIConfig, cloud_velocity, init_state, mppi_step, release_controls,
-                        rollout_min_distances,
-                        smoothing_matrix, step_clearance, temperature_for_ess)
-from ncedf.robot import RobotSpec
+from ncedf.mppi import (MIN_ESS, NOMINAL_SLACK, TEMPERATURE_GRID, MPPIConfig, cloud_velocity, init_state, mppi_step,
+                        release_controls, rollout_min_distances, sample_noise, smoothing_matrix, step_clearance,
+                        temperature_for_ess)
+from ncedf.robot import RobotSpec, forward_kinematics
 from ncedf.shapes import make_shape
 from scenarios.presets import mppi_config
 
@@ -158,8 +158,65 @@ def test_temperature_for_ess_is_the_smallest_grid_value_that_reaches_the_target(
     assert i == 0 or ess(grid[i - 1]) < wanted
 
 
+# A 1-link robot far from its only (distant) point, with almost uniform weights (lambda = 1e6), so the
+# update is the plain mean of the samples; the noise is rebuilt from the step's key split.
+MEAN_CONFIG = MPPIConfig(samples=64, horizon=3, covariance=0.1, noise_clip=0.5, sampling="release",
+                         temperature=1e6, max_points=512, broad_phase=False, w_perturbation=0.0)
+FAR = np.array([[50.0, 50.0, 50.0]], np.float32)
+
+
+def _mean_step(config, nominal, goal=(1.0, 0.0, 1.5)):
+    shape = make_shape("exact", SPEC)
+    state = init_state(SPEC, config, jax.random.PRNGKey(3))._replace(nominal=jnp.asarray(nominal, jnp.float32))
+    eps = np.asarray(sample_noise(config, jax.random.split(state.key)[1], state.nominal.shape, jnp.float32))
+    out = mppi_step(SPEC, config, shape, state, jnp.asarray(ARC), jnp.asarray(goal, jnp.float32), jnp.asarray(FAR),
+                    jnp.ones(1, bool))
+    return eps, out
+
+
+def test_unclipped_update_keeps_a_saturated_plan_at_the_bound():
+    # the plan's free rates beyond the bound (0.45 > 0.3): every sample's first free rate is near or at it
+    nominal = np.broadcast_to(np.array([0.45, -0.45, 0.0], np.float32), (3, 1, 3))
+    bound = MEAN_CONFIG.control_bound
+    eps, (clipped_action, clipped_state, _) = _mean_step(MEAN_CONFIG, nominal)
+    raw = nominal + eps.mean(axis=0)  # (H, M, 3): the truth of the unclipped update
+    mean_of_bounded = np.asarray(release_controls(jnp.asarray(nominal[None] + eps)[..., :2], bound)).mean(axis=0)
+    np.testing.assert_allclose(clipped_action, mean_of_bounded[0], atol=1e-5)
+    assert np.abs(np.asarray(clipped_action)[0, :2]).max() < bound - 0.01  # the mean lies inside the bound
+
+    config = dataclasses.replace(MEAN_CONFIG, update_unclipped=True)
+    eps2, (action, state, _) = _mean_step(config, nominal)
+    np.testing.assert_array_equal(eps2, eps)
+    expected = np.asarray(release_controls(jnp.asarray(raw[0, :, :2]), bound))
+    np.testing.assert_allclose(action, expected, atol=1e-5)
+    assert np.all(np.abs(raw[0, 0, :2]) > bound)  # so the executed rates are at the bound
+    np.testing.assert_allclose(np.abs(np.asarray(action)[0, :2]), bound, atol=1e-6)
+    slack = NOMINAL_SLACK * bound
+    np.testing.assert_allclose(state.nominal[:2], np.clip(raw[1:], -slack, slack), atol=1e-5)
+    np.testing.assert_allclose(state.nominal[2], np.clip(raw[2], -slack, slack), atol=1e-5)  # last repeated
+
+
+@pytest.mark.parametrize("goal_reach", [False, True])
+def test_goal_cost_of_the_selected_rollout(goal_reach):
+    # the truth: rollout states rebuilt from the noise, the goal distance per state with numpy, and for
+    # goal_reach its running minimum (terminal state charged its own distance)
+    config = dataclasses.replace(MEAN_CONFIG, horizon=6, temperature=0.02, w_goal_terminal=22.0,
+                                 goal_reach=goal_reach)
+    goal = np.array([-0.6, 0.0, 1.8], np.float32)
+    nominal = np.broadcast_to(np.array([0.2, -0.2, 0.0], np.float32), (6, 1, 3))
+    eps, (_, _, info) = _mean_step(config, nominal, goal)
+    u = np.asarray(release_controls(jnp.asarray(nominal[None] + eps)[..., :2], config.control_bound))
+    arcs = ARC[None, None] + config.dt * np.cumsum(u, axis=1)  # (N, H, 1, 3)
+    tips = np.asarray(forward_kinematics(jnp.asarray(arcs), SPEC))[..., -1, :3, 3].astype(np.float64)
+    d = np.linalg.norm(tips - goal, axis=-1)  # (N, H)
+    assert np.any(np.diff(d, axis=1) > 1e-3), "some rollouts must move away from the goal for this to mean anything"
+    running = np.minimum.accumulate(d, axis=1) if goal_reach else d
+    cost = config.w_goal * running[:, :-1].sum(axis=1) + config.w_goal_terminal * d[:, -1]
+    np.testing.assert_allclose(float(info.cost_goal), cost[int(info.selected)], rtol=1e-4)
+
+
 def test_new_options_are_validated():
-    for field, value in [("sampling", "free"), ("noise_smoothing", 1.0), ("target_ess", 0.0), ("target_ess", 2.0),
+    for field, value in [("sampling", "free"), ("goal_reach", 1), ("update_unclipped", "yes"), ("noise_smoothing", 1.0), ("target_ess", 0.0), ("target_ess", 2.0),
                          ("safety_check", 1), ("check_substeps", 0), ("check_margin", -0.1),
                          ("predict_motion", "yes"), ("stall_steps", -1), ("stall_steps", 2.0), ("stall_ess", 0.0),
                          ("stall_progress", 0.0)]:
@@ -223,6 +280,16 @@ def test_paper_and_release_presets_are_unchanged():
         assert (config.sampling, config.noise_smoothing, config.target_ess, config.safety_check) == (
             "project", 0.0, None, False)
         assert not config.predict_motion
+
+
+def test_ours_moves_at_its_top_rates_among_the_spheres_only():
+    spheres = mppi_config("ours", "spheres", 4, n_points=8, margin_extra=0.7)
+    assert spheres.update_unclipped and spheres.goal_reach
+    for scenario in ("cluttered", "charging", "custom"):
+        other = mppi_config("ours", scenario, 4, n_points=8, margin_extra=0.7)
+        assert not other.update_unclipped and not other.goal_reach
+        assert dataclasses.replace(other, update_unclipped=True, goal_reach=True, samples=spheres.samples,
+                                   horizon=spheres.horizon) == spheres
 
 
 @pytest.mark.parametrize("broad_phase", [True, False])
