@@ -38,7 +38,7 @@ import optax
 
 from ncedf.geometry import robot_signed_distance
 from ncedf.mppi import MPPIConfig, release_controls
-from ncedf.robot import RobotSpec, end_effector_pose, project_state
+from ncedf.robot import RobotSpec, forward_kinematics, project_state
 from scenarios.world import World, judge_step
 
 
@@ -131,6 +131,12 @@ def sphere_clearances(arcs: jnp.ndarray, track: jnp.ndarray, radii: jnp.ndarray,
     return jnp.min(distances - radii, axis=-1)
 
 
+@functools.partial(jax.jit, static_argnums=0)
+def _tips(spec: RobotSpec, arcs: jnp.ndarray) -> jnp.ndarray:
+    """End-effector positions (..., 3) of states (..., M, 3), m."""
+    return forward_kinematics(arcs, spec)[..., -1, :3, 3]
+
+
 @functools.partial(jax.jit, static_argnums=(0, 1, 2))
 def optimise(spec: RobotSpec, config: OracleConfig, dt: float, z0: jnp.ndarray, track: jnp.ndarray,
              radii: jnp.ndarray, goal: jnp.ndarray) -> jnp.ndarray:
@@ -146,7 +152,7 @@ def optimise(spec: RobotSpec, config: OracleConfig, dt: float, z0: jnp.ndarray, 
 
     def objective(z):
         arcs = rollout(z, spec, dt, c.control_bound)
-        reach = jnp.linalg.norm(end_effector_pose(arcs[-1], spec)[:3, 3] - goal)
+        reach = jnp.linalg.norm(_tips(spec, arcs[-1]) - goal)
         if track.shape[1] == 0:
             return reach
         d = sphere_clearances(arcs, track, radii, spec, c.substeps)
@@ -198,13 +204,13 @@ def plan_reach(world: World, spec: RobotSpec, goal, tolerance: float, horizons, 
     if not horizons or horizons[0] < 1:
         raise ValueError(f"horizons must be >= 1, got {horizons}")
     radii = jnp.asarray([s.radius for s in world.spheres], jnp.float32).reshape(-1)
-    ee = jax.jit(jax.vmap(jax.vmap(lambda arc: end_effector_pose(arc, spec)[:3, 3])))
     for horizon in horizons:
         times = np.arange(horizon * config.substeps + 1) * dt / config.substeps
         track = jnp.asarray(world.sphere_track(times), jnp.float32)
         z0 = jax.random.normal(jax.random.fold_in(key, horizon), (config.starts, horizon, spec.n_links, 2))
         motions = optimise(spec, config, dt, z0, track, radii, jnp.asarray(goal, jnp.float32))
-        misses = np.linalg.norm(np.asarray(ee(motions), np.float64) - goal, axis=-1)  # (B, T + 1)
+        tips = np.asarray(_tips(spec, motions), np.float64)  # (B, T + 1, 3)
+        misses = np.linalg.norm(tips - goal, axis=-1)
         reached = misses <= tolerance
         for b in np.argsort(misses.min(axis=1)):
             if not reached[b].any():
