@@ -517,8 +517,11 @@ def mppi_step(spec: RobotSpec, config: MPPIConfig, shape, state: MPPIState, arc,
 
     running = (jnp.arange(c.horizon) < c.horizon - 1).astype(arcs.dtype)  # x^1 .. x^{H-1}
     terminal = 1.0 - running  # x^H
-    goal_run = jax.lax.cummin(goal_d, axis=1) if c.goal_reach else goal_d
-    c_goal = jnp.sum(c.w_goal * running * goal_run + c.w_goal_terminal * terminal * goal_d, axis=1)
+    if c.goal_reach:  # the running states charged their closest approach so far, x^H its own distance
+        c_goal = jnp.sum(c.w_goal * running * jax.lax.cummin(goal_d, axis=1)
+                         + c.w_goal_terminal * terminal * goal_d, axis=1)
+    else:  # (written as before goal_reach existed: the same float operations, so recordings repeat)
+        c_goal = jnp.sum(goal_d * (c.w_goal * running + c.w_goal_terminal * terminal), axis=1)
     c_coll = jnp.sum(coll * (c.w_coll * running + c.w_coll_terminal * terminal), axis=1)
     c_state = c.w_state * jnp.sum(viol * running, axis=1)
     c_pert = c.w_perturbation * jnp.sum(nominal[None] * eps, axis=(1, 2, 3)) / c.covariance
