@@ -271,7 +271,8 @@ class MPPIConfig:
 
 
 class MPPIState(NamedTuple):
-    """Controller state (a pytree): nominal controls (H, M, 3) m/s, a PRNG key, the
+    """Controller state (a pytree): nominal controls (H, M, 3) m/s (with ``update_unclipped``
+    the unbounded plan, within +-NOMINAL_SLACK * control_bound), a PRNG key, the
     previous step's cloud (max_points, 3) m with its mask (max_points,) (all False at first),
     the smallest goal distance of the current state so far (scalar, +inf at first) and the
     steps since it last fell by ``stall_progress`` (scalar int32)."""
