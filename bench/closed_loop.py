@@ -143,7 +143,9 @@ changes on the cluttered scene (``ours+race``, 20 seeds per link count):
 tip crosses a box face between its sparse points within one step), 5 links
 6 and 14, 7 links 13 and 7; ``goal_reach`` alone 0 and 20, 1 and 19, 20 and
 0 (a rollout swept through a box to touch the goal is charged only its
-closest approach). So ``ours`` races among the spheres only.
+closest approach); ``update_unclipped`` alone 16 and 4 (median reach 44,
+where ``ours`` needs 226), 15 and 5, 16 and 4, the collisions shallow (-0.002
+to -0.078 m) at steps 10-65. So ``ours`` races among the spheres only.
 
 ``--timing 8`` with the surface model: L4 131.4 / 111.1 ms (1.18), L7 58.5 /
 41.2 (1.42), spheres 84.3 / 80.8 (1.04) (before it: L4 64.8 / 62.8 (1.03),
