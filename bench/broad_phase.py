@@ -49,7 +49,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ncedf.broad_phase import SELECTIONS, rollout_min_distances_broad, rollout_min_distances_brute
-from ncedf.mppi import sample_controls, sample_noise
+from ncedf.mppi import bounded_controls, sample_noise
 from ncedf.model import load_model
 from ncedf.robot import RobotSpec, sample_arc_lengths
 from ncedf.shapes import make_shape
@@ -82,7 +82,7 @@ def near_states(spec: RobotSpec, count: int, seed: int) -> np.ndarray:
 def rollouts(spec: RobotSpec, config, state: np.ndarray, key) -> jnp.ndarray:
     """(N, H, M, 3) rollout states of ``config`` from ``state`` with a zero nominal."""
     nominal = jnp.zeros((config.horizon, spec.n_links, 3), jnp.float32)
-    u = sample_controls(config, nominal, sample_noise(config, key, nominal.shape, jnp.float32))
+    u = bounded_controls(config, nominal[None] + sample_noise(config, key, nominal.shape, jnp.float32))
     return jnp.asarray(state, jnp.float32) + config.dt * jnp.cumsum(u, axis=1)
 
 

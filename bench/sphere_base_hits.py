@@ -51,7 +51,7 @@ def disk_gap(centres: np.ndarray, radii: np.ndarray, disk_radius: float) -> np.n
 def first_base_hit(world: World, spec: RobotSpec, horizon: float, dt: float) -> float | None:
     """First sampled time in [0, horizon] at which a sphere overlaps the base disk, s (None if never)."""
     times = np.arange(0.0, horizon + 0.5 * dt, dt)
-    centres = np.stack([world.sphere_centres(t) for t in times])  # (T, S, 3)
+    centres = world.sphere_track(times)  # (T, S, 3)
     radii = np.array([s.radius for s in world.spheres])
     hit = np.any(disk_gap(centres, radii, spec.radius) < 0.0, axis=1)
     return float(times[np.argmax(hit)]) if hit.any() else None

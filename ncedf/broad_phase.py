@@ -306,7 +306,7 @@ def _tree_min(x: jnp.ndarray, axis: int) -> jnp.ndarray:
 
 def _bitonic_sort(x: jnp.ndarray) -> jnp.ndarray:
     """Ascending sort along the last axis (its length a power of two) by a bitonic network:
-    element-wise minimums and maximums only (see :func:`smallest` for why)."""
+    element-wise minimums and maximums only (see :func:`_tree_min` for why)."""
     n = x.shape[-1]
     size = 2
     while size <= n:

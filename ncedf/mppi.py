@@ -378,11 +378,6 @@ def bounded_controls(config: MPPIConfig, raw: jnp.ndarray) -> jnp.ndarray:
     return project_controls(raw, config.control_bound)
 
 
-def sample_controls(config: MPPIConfig, nominal: jnp.ndarray, eps: jnp.ndarray) -> jnp.ndarray:
-    """Sampled zero-sum rates (N, H, M, 3) from the nominal (H, M, 3) and noise (``config.sampling``)."""
-    return bounded_controls(config, nominal[None] + eps)
-
-
 def temperature_for_ess(norm: jnp.ndarray, target) -> jnp.ndarray:
     """The smallest lambda of ``TEMPERATURE_GRID`` whose weights ``exp(-norm / lambda)`` have an
     effective sample size >= ``max(target * N, MIN_ESS)`` (at most N; the largest lambda if none has).
@@ -493,7 +488,8 @@ def mppi_step(spec: RobotSpec, config: MPPIConfig, shape, state: MPPIState, arc,
     key, k_noise = jax.random.split(state.key)
     nominal = state.nominal
     eps = sample_noise(c, k_noise, nominal.shape, nominal.dtype)
-    u = sample_controls(c, nominal, eps)  # (N, H, M, 3)
+    perturbed = nominal[None] + eps  # the unbounded samples (N, H, M, 3)
+    u = bounded_controls(c, perturbed)
     arcs = arc[None, None] + c.dt * jnp.cumsum(u, axis=1)  # x^1 .. x^H
 
     # Per-state terms.
@@ -544,7 +540,7 @@ def mppi_step(spec: RobotSpec, config: MPPIConfig, shape, state: MPPIState, arc,
     w = w / jnp.sum(w)
     ess = 1.0 / jnp.sum(w * w)
     if c.update_unclipped:
-        raw = (1.0 - c.alpha_u) * nominal + c.alpha_u * jnp.einsum("n,nhmc->hmc", w, nominal[None] + eps)
+        raw = (1.0 - c.alpha_u) * nominal + c.alpha_u * jnp.einsum("n,nhmc->hmc", w, perturbed)
         raw = jnp.clip(raw, -NOMINAL_SLACK * c.control_bound, NOMINAL_SLACK * c.control_bound)
         updated = bounded_controls(c, raw)
     else:

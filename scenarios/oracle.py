@@ -120,10 +120,8 @@ def sphere_clearances(arcs: jnp.ndarray, track: jnp.ndarray, radii: jnp.ndarray,
       track: (T substeps + 1, S, 3) sphere centres at t = i dt / substeps, m.
       radii: (S,) m.
     Returns:
-      (T substeps,) clearance at i = 1 .. T substeps, m (negative = overlap; +inf without spheres).
+      (T substeps,) clearance at i = 1 .. T substeps, m (negative = overlap); S >= 1.
     """
-    if track.shape[1] == 0:
-        return jnp.full(((arcs.shape[0] - 1) * substeps,), jnp.inf, arcs.dtype)
     frac = jnp.arange(1, substeps + 1, dtype=arcs.dtype) / substeps
     between = arcs[:-1, None] + frac[None, :, None, None] * (arcs[1:] - arcs[:-1])[:, None]
     between = between.reshape((-1,) + arcs.shape[1:])
