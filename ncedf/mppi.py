@@ -75,6 +75,14 @@ observed cloud together with points filled in between neighbours up to
 sparsely sampled surface between its points; ``MPPIInfo.current_min_distance``
 stays the distance to the observed points.
 
+Convex model (``convex_link`` > 0): the rows of the cloud that did not move
+since the previous step are clustered and each cluster closed as a convex
+polytope (``ncedf.convex``: exact for boxes sampled on their faces, holes
+included); every rollout state's and safety-check state's predicted distance
+is the smaller of the representation's and a lower bound of the robot body's
+clearance to the polytopes. :meth:`MPPI.step` fits the polytopes (numpy,
+again only when the static points change) and passes them to the step.
+
 Moving obstacles (``predict_motion``): the controller keeps the previous
 cloud; a point's velocity is its displacement since the previous step over dt
 (clouds whose row ``i`` is the same physical point at every step, as the
@@ -104,6 +112,7 @@ import numpy as np
 
 from ncedf.broad_phase import SELECTIONS, rollout_min_distances_broad, rollout_min_distances_brute
 from ncedf.cloud import fill_weights, interpolate
+from ncedf.convex import fit_polytopes, robot_clearance, static_rows
 from ncedf.robot import RobotSpec, forward_kinematics, validate_state
 from ncedf.shapes import Shape
 
@@ -176,6 +185,9 @@ class MPPIConfig:
       update_unclipped: update the plan with the weighted mean of the
         unclipped samples and bound it only when rolled out and executed
         (module docstring).
+      convex_link: 0 = off; > 0 = also score the robot's clearance to convex
+        polytopes of the cloud's static points, clustered at this single-linkage
+        distance, m (``ncedf.convex``; module docstring).
     """
 
     samples: int = 800
@@ -217,6 +229,7 @@ class MPPIConfig:
     stall_progress: float = 0.05
     goal_reach: bool = False
     update_unclipped: bool = False
+    convex_link: float = 0.0
 
     def __post_init__(self):
         def num(name):
@@ -238,7 +251,7 @@ class MPPIConfig:
             if num(name) <= 0:
                 raise ValueError(f"MPPIConfig.{name} must be > 0, got {getattr(self, name)}")
         for name in ("w_goal", "w_coll", "w_state", "w_goal_terminal", "w_coll_terminal", "w_perturbation", "safety_margin",
-                     "check_margin", "fill_edge"):
+                     "check_margin", "fill_edge", "convex_link"):
             if num(name) < 0:
                 raise ValueError(f"MPPIConfig.{name} must be >= 0, got {getattr(self, name)}")
         if not 0 < num("alpha_u") <= 1:
@@ -394,16 +407,16 @@ def temperature_for_ess(norm: jnp.ndarray, target) -> jnp.ndarray:
 
 
 def step_clearance(config: MPPIConfig, shape, arc: jnp.ndarray, actions: jnp.ndarray, points, mask,
-                   velocity=None) -> jnp.ndarray:
+                   velocity=None, polytopes=None) -> jnp.ndarray:
     """Predicted clearance over one step for each action: min over the states
     ``arc + (s / S) u dt``, s = 1..S (``config.check_substeps``, ``config.dt``), of the
     representation's min distance to the cloud (moved by ``(s / S) dt velocity`` when
     velocities are given), by the broad phase or brute force as the rollouts are
-    (``config.broad_phase``).
+    (``config.broad_phase``), and of the clearance to the polytopes if given.
 
     Args:
       arc: (M, 3) m.  actions: (C, M, 3) m/s.  points: (P, 3) m; mask: (P,) bool.
-      velocity: (P, 3) m/s or None.
+      velocity: (P, 3) m/s or None.  polytopes: ``ncedf.convex.Polytopes`` or None.
     Returns:
       (C,) m (+inf for an empty cloud).
     """
@@ -414,7 +427,11 @@ def step_clearance(config: MPPIConfig, shape, arc: jnp.ndarray, actions: jnp.nda
     # One candidate at a time: the broad phase picks its points near the mean of the states it
     # is given, and the candidates can move in opposite directions.
     one = lambda s: jnp.min(rollout_min_distances(config, shape, s[None], points, mask))  # noqa: E731
-    return jax.vmap(one)(states)
+    clearance = jax.vmap(one)(states)
+    if polytopes is not None:
+        frames = forward_kinematics(states, shape.spec)
+        clearance = jnp.minimum(clearance, jnp.min(robot_clearance(states, frames, shape.spec, polytopes), axis=1))
+    return clearance
 
 
 def cloud_velocity(points, mask, previous, previous_mask, dt: float) -> jnp.ndarray:
@@ -470,7 +487,8 @@ def goal_distance(frames_ee: jnp.ndarray, goal: jnp.ndarray) -> jnp.ndarray:
 
 
 @functools.partial(jax.jit, static_argnums=(0, 1))
-def mppi_step(spec: RobotSpec, config: MPPIConfig, shape, state: MPPIState, arc, goal, points, mask):
+def mppi_step(spec: RobotSpec, config: MPPIConfig, shape, state: MPPIState, arc, goal, points, mask,
+              polytopes=None):
     """One MPPI iteration: a pure function, jitted with ``spec`` and ``config`` static.
 
     No validation (see :meth:`MPPI.step` for the validated form). Every
@@ -481,10 +499,14 @@ def mppi_step(spec: RobotSpec, config: MPPIConfig, shape, state: MPPIState, arc,
       shape: a :class:`ncedf.shapes.Shape`.  state: :class:`MPPIState`.
       arc: (M, 3) current arc lengths, m.  goal: (3,) position or (4, 4) pose.
       points: (max_points, 3) obstacle cloud, m; mask: (max_points,) bool, True = real point.
+      polytopes: ``ncedf.convex.Polytopes`` of the static points (used with
+        ``convex_link`` > 0), or None.
     Returns:
       action (M, 3) m/s, the next :class:`MPPIState`, and an :class:`MPPIInfo`.
     """
     c = config
+    if c.convex_link == 0:
+        polytopes = None
     key, k_noise = jax.random.split(state.key)
     nominal = state.nominal
     eps = sample_noise(c, k_noise, nominal.shape, nominal.dtype)
@@ -509,6 +531,8 @@ def mppi_step(spec: RobotSpec, config: MPPIConfig, shape, state: MPPIState, arc,
         dist = rollout_min_distances(config, shape, arcs, points + ahead[:, None, None] * velocity, mask, frames)
     else:
         dist = rollout_min_distances(config, shape, arcs, points, mask, frames)  # (N, H)
+    if polytopes is not None:
+        dist = jnp.minimum(dist, robot_clearance(arcs, frames, spec, polytopes))
     coll = 1.0 / jnp.maximum(dist - c.safety_margin, c.epsilon)
     viol = jnp.sum(jnp.maximum(spec.l_min - arcs, 0.0) + jnp.maximum(arcs - spec.l_max, 0.0), axis=(-2, -1))
 
@@ -556,7 +580,8 @@ def mppi_step(spec: RobotSpec, config: MPPIConfig, shape, state: MPPIState, arc,
         if c.limit_action:
             candidates = jax.vmap(lambda a: limit_to_state_bounds(arc, a, c.dt, spec))(candidates)
         needed = c.safety_margin + c.check_margin
-        check = functools.partial(step_clearance, c, shape, arc, points=points, mask=mask, velocity=velocity)
+        check = functools.partial(step_clearance, c, shape, arc, points=points, mask=mask, velocity=velocity,
+                                  polytopes=polytopes)
         first = check(actions=candidates[:1])
         # The fallbacks are evaluated only when the MPPI action fails (lax.cond runs one branch).
         clear = jax.lax.cond(first[0] >= needed,
@@ -612,6 +637,7 @@ class MPPI:
         self.spec = spec
         self.shape = shape
         self.config = config
+        self._polytopes = (None, None)  # (static points' bytes, their Polytopes)
 
     def init(self, key) -> MPPIState:
         """Zero nominal controls (paper: the initial reference is zero) and the key."""
@@ -652,6 +678,17 @@ class MPPI:
             raise ValueError(f"goal contains NaN or inf: {g.tolist()}")
         return jnp.asarray(g)
 
+    def polytopes(self, state: MPPIState, points, mask):
+        """The convex model (``ncedf.convex``) of the rows of the padded cloud (points, mask)
+        that equal the previous step's (``state.previous``); refitted only when they change."""
+        points = np.asarray(points)
+        static = points[static_rows(points, np.asarray(mask), np.asarray(state.previous),
+                                    np.asarray(state.previous_mask))]
+        key = static.tobytes()
+        if self._polytopes[0] != key:
+            self._polytopes = (key, fit_polytopes(static, self.config.convex_link))
+        return self._polytopes[1]
+
     def step(self, state: MPPIState, arc, goal, obstacle_points=None):
         """One MPPI iteration with validated inputs.
 
@@ -675,7 +712,9 @@ class MPPI:
         arc = jnp.asarray(validate_state(arc, self.spec), jnp.float32)
         goal = self.check_goal(goal)
         points, mask = self.pad_points(obstacle_points)
-        action, new_state, info = mppi_step(self.spec, self.config, self.shape, state, arc, goal, points, mask)
+        polytopes = self.polytopes(state, points, mask) if self.config.convex_link > 0 else None
+        action, new_state, info = mppi_step(self.spec, self.config, self.shape, state, arc, goal, points, mask,
+                                            polytopes)
         if not bool(jnp.all(jnp.isfinite(action))):
             raise FloatingPointError("MPPI produced a non-finite action; the inputs or the shape model are broken")
         return action, new_state, info

@@ -1,0 +1,185 @@
+"""A convex model of the static part of an obstacle cloud: clusters as polytopes.
+
+A cloud sampled at a few points per square metre on obstacle surfaces has holes
+wider than the robot (``ncedf.cloud``: up to 0.8 m across at the paper's 4
+points per m^2), and a distance to the points alone lets a link slide into a
+face between them. Where the obstacles are convex (the cluttered scene's boxes)
+their surfaces can be closed from the points alone:
+
+* static points: the rows of the cloud that did not move since the previous
+  step (:func:`static_rows`; the scenarios observe row ``i`` as the same
+  physical point at every step, so a moving obstacle's rows change);
+* clusters: single linkage, points closer than ``link`` are on one obstacle
+  (:func:`clusters`). Obstacles closer than ``link`` merge into one cluster
+  and the gap between them is closed;
+* each cluster's polytope (:func:`fit_polytope`): the axis-aligned box of its
+  points, cut by the planes of its convex hull's largest faces (coplanar hull
+  triangles merged; at most ``MAX_PLANES`` besides the box's six). Every
+  plane supports the points (all lie on its inner side), so the polytope
+  contains their hull; fewer planes make it larger, never smaller. An
+  axis-aligned box sampled on its faces *is* its points' bounding box, holes
+  and edges included, and a rotated one is closed by its face planes (with at
+  least three points on each face). Where the samples stop short of a corner
+  that neither the bounding box nor a kept plane reaches (a rotated box's
+  corners; a curved surface between samples, whose hull faces are chords) the
+  model is smaller than the obstacle by that much. A non-convex cluster is
+  filled in (its concavities closed), so the model is for worlds of convex
+  obstacles, or of obstacles spaced further apart than ``link``.
+
+Distance to a polytope (:func:`polytope_distance`): the larger of the signed
+distance to its box (exact) and of ``n_k . x - b_k`` over its planes; at most
+the Euclidean distance outside (a lower bound: safe; exact for a box), and minus
+the depth inside. The robot's clearance to the polytopes
+(:func:`robot_clearance`) uses ``COVER_SPHERES`` balls per link whose union
+contains the link body (``ncedf.shapes.sphere_cover_radius``): ``min (d(c) - R)``
+over the balls is at most the clearance of the body.
+
+Fixed sizes for the jitted controller: :class:`Polytopes` holds
+``MAX_CLUSTERS`` clusters of ``MAX_PLANES`` planes; unused ones are masked. The
+largest clusters (by point count) are kept when there are more.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import ConvexHull, QhullError, cKDTree
+
+from ncedf.robot import RobotSpec
+from ncedf.shapes import SphereShape
+
+#: Clusters a :class:`Polytopes` holds (the largest are kept).
+MAX_CLUSTERS = 8
+#: Hull planes per polytope (besides its bounding box's six).
+MAX_PLANES = 8
+#: Hull planes whose merged area is below this share of the hull's area are left out.
+MIN_PLANE_SHARE = 0.02
+#: Hull triangles whose unit normals and offsets agree to this (1, m) are one plane.
+PLANE_TOLERANCE = 1e-3
+#: Balls per link that cover the robot body for the clearance to the polytopes.
+COVER_SPHERES = 10
+
+
+class Polytopes(NamedTuple):
+    """Convex polytopes: a box ``lower <= x <= upper`` cut by the half-spaces
+    ``n_k . x <= b_k`` of its valid planes (a pytree).
+
+    lower, upper: (C, 3) m.  normals: (C, K, 3) outward unit normals.  offsets: (C, K) m.
+    valid: (C, K) bool.  present: (C,) bool; an absent cluster is no obstacle.
+    """
+
+    lower: jnp.ndarray
+    upper: jnp.ndarray
+    normals: jnp.ndarray
+    offsets: jnp.ndarray
+    valid: jnp.ndarray
+    present: jnp.ndarray
+
+
+def static_rows(points: np.ndarray, mask: np.ndarray, previous: np.ndarray, previous_mask: np.ndarray) -> np.ndarray:
+    """(P,) bool: real rows equal to the same row of the previous cloud (all (P, 3) / (P,))."""
+    return mask & previous_mask & np.all(points == previous, axis=-1)
+
+
+def clusters(points: np.ndarray, link: float) -> np.ndarray:
+    """(P,) int cluster label of each point (P, 3): single linkage at distance ``link``, m."""
+    n = len(points)
+    if n == 0:
+        return np.zeros(0, int)
+    pairs = cKDTree(points).query_pairs(link, output_type="ndarray")
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    return connected_components(graph, directed=False)[1]
+
+
+def _hull_planes(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Merged hull planes (normals (Q, 3), offsets (Q,), areas (Q,)), largest first; none if degenerate."""
+    try:
+        hull = ConvexHull(points)
+    except (QhullError, ValueError):  # fewer than 4 points, or all on a plane or line
+        return np.zeros((0, 3)), np.zeros(0), np.zeros(0)
+    normals, offsets = hull.equations[:, :3], -hull.equations[:, 3]
+    tri = points[hull.simplices]
+    areas = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=-1)
+    keys = np.round(np.concatenate([normals, offsets[:, None]], axis=1) / PLANE_TOLERANCE).astype(np.int64)
+    _, group = np.unique(keys, axis=0, return_inverse=True)
+    group = group.reshape(-1)
+    merged = np.bincount(group, weights=areas)
+    first = np.full(len(merged), -1)
+    order = np.argsort(-areas, kind="stable")
+    first[group[order[::-1]]] = order[::-1]  # the largest triangle of each group wins
+    rank = np.argsort(-merged, kind="stable")
+    return normals[first[rank]], offsets[first[rank]], merged[rank]
+
+
+def fit_polytope(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The polytope of one cluster (module docstring): its bounding box lower, upper (3,) and
+    hull planes normals (K, 3), offsets (K,), K <= MAX_PLANES (the box's own planes left out)."""
+    points = np.asarray(points, np.float64)
+    lower, upper = points.min(axis=0), points.max(axis=0)
+    box_n = np.concatenate([np.eye(3), -np.eye(3)])
+    box_b = np.concatenate([upper, -lower])
+    hull_n, hull_b, areas = _hull_planes(points)
+    same = (np.all(np.abs(hull_n[:, None] - box_n) < PLANE_TOLERANCE, axis=-1)
+            & (np.abs(hull_b[:, None] - box_b) < PLANE_TOLERANCE))  # (Q, 6): a bounding-box plane again
+    keep = (areas >= MIN_PLANE_SHARE * areas.sum()) & ~np.any(same, axis=1)
+    return lower, upper, hull_n[keep][:MAX_PLANES], hull_b[keep][:MAX_PLANES]
+
+
+def fit_polytopes(points: np.ndarray, link: float) -> Polytopes:
+    """Polytopes of the clusters of ``points`` (S, 3) at single-linkage distance ``link`` (m).
+
+    The MAX_CLUSTERS largest clusters are kept; padded and masked to the fixed capacity.
+    """
+    lower = np.zeros((MAX_CLUSTERS, 3), np.float32)
+    upper = np.zeros((MAX_CLUSTERS, 3), np.float32)
+    normals = np.zeros((MAX_CLUSTERS, MAX_PLANES, 3), np.float32)
+    offsets = np.zeros((MAX_CLUSTERS, MAX_PLANES), np.float32)
+    valid = np.zeros((MAX_CLUSTERS, MAX_PLANES), bool)
+    present = np.zeros(MAX_CLUSTERS, bool)
+    labels = clusters(np.asarray(points, np.float64), link)
+    if len(labels):
+        sizes = np.bincount(labels)
+        for c, label in enumerate(np.argsort(-sizes, kind="stable")[:MAX_CLUSTERS]):
+            lower[c], upper[c], n, b = fit_polytope(points[labels == label])
+            normals[c, : len(b)], offsets[c, : len(b)], valid[c, : len(b)] = n, b, True
+            present[c] = True
+    return Polytopes(*(jnp.asarray(a) for a in (lower, upper, normals, offsets, valid, present)))
+
+
+def polytope_distance(x: jnp.ndarray, polytopes: Polytopes) -> jnp.ndarray:
+    """(...,) lower bound of the distance from points x (..., 3) to the nearest polytope
+    (negative inside: minus the depth), m; +inf without polytopes.
+
+    Per polytope: the larger of the signed distance to its box (exact) and of the
+    planes' ``n_k . x - b_k``; a lower bound because the polytope lies in each.
+    Written per component so XLA fuses it with the reductions (no (..., C, K) array).
+    """
+    p = polytopes
+    centre, half = 0.5 * (p.upper + p.lower), 0.5 * (p.upper - p.lower)  # (C, 3)
+    q = [jnp.abs(x[..., None, i] - centre[:, i]) - half[:, i] for i in range(3)]  # 3 x (..., C)
+    outside = jnp.sqrt(sum(jnp.maximum(qi, 0.0) ** 2 for qi in q))
+    box = outside + jnp.minimum(jnp.maximum(jnp.maximum(q[0], q[1]), q[2]), 0.0)
+    n = p.normals
+    s = sum(x[..., None, None, i] * n[..., i] for i in range(3)) - p.offsets  # (..., C, K)
+    planes = jnp.max(jnp.where(p.valid, s, -jnp.inf), axis=-1)
+    return jnp.min(jnp.where(p.present, jnp.maximum(box, planes), jnp.inf), axis=-1)
+
+
+def robot_clearance(arcs: jnp.ndarray, frames: jnp.ndarray, spec: RobotSpec, polytopes: Polytopes) -> jnp.ndarray:
+    """(B...,) lower bound of the robot body's clearance to the polytopes, m.
+
+    Args:
+      arcs: (B..., M, 3) arc lengths, m.  frames: (B..., M + 1, 4, 4) their forward kinematics.
+    """
+    cover = SphereShape(spec, per_link=COVER_SPHERES)
+    prepare = cover.prepare
+    for _ in range(arcs.ndim - 2):
+        prepare = jax.vmap(prepare)
+    geom = prepare(arcs, frames)
+    d = polytope_distance(geom.centres, polytopes) - geom.radius[..., None]  # (B..., M, n)
+    return jnp.min(d, axis=(-2, -1))

@@ -1,0 +1,177 @@
+"""ncedf.convex against independent truths: the closed-form signed distance of a box,
+the Euclidean distance to a rotated box's surface (dense), the robot's closed-form
+signed distance over a dense grid on a box, and the controller's safety check in
+front of a box sampled only at its corners."""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from ncedf.convex import (COVER_SPHERES, MAX_CLUSTERS, clusters, fit_polytope, fit_polytopes, polytope_distance,
+                          robot_clearance, static_rows)
+from ncedf.geometry import robot_signed_distance
+from ncedf.mppi import MPPI, MPPIConfig, init_state, mppi_step, step_clearance
+from ncedf.robot import RobotSpec, forward_kinematics, sample_arc_lengths
+from ncedf.shapes import make_shape, sphere_cover_radius
+
+
+def _box_surface(rng, centre, size, density):
+    """Uniform points on the faces of an axis-aligned box, ``density`` per m^2 (at least 3 a face)."""
+    centre, half = np.asarray(centre, float), 0.5 * np.asarray(size, float)
+    out = []
+    for axis in range(3):
+        a, b = [i for i in range(3) if i != axis]
+        n = max(3, int(round(density * 4 * half[a] * half[b])))
+        for sign in (-1.0, 1.0):
+            p = np.empty((n, 3))
+            p[:, axis] = sign * half[axis]
+            p[:, a] = rng.uniform(-half[a], half[a], n)
+            p[:, b] = rng.uniform(-half[b], half[b], n)
+            out.append(centre + p)
+    return np.concatenate(out)
+
+
+def _box_sdf(x, centre, size):
+    q = np.abs(x - np.asarray(centre)) - 0.5 * np.asarray(size)
+    return np.linalg.norm(np.maximum(q, 0.0), axis=-1) + np.minimum(q.max(axis=-1), 0.0)
+
+
+def test_a_sparsely_sampled_box_is_closed_exactly():
+    # 4 points per m^2 leave holes wider than the robot; the polytope is still the box.
+    rng = np.random.default_rng(0)
+    boxes = [((2.5, 0.0, 5.0), (1.0, 4.8, 3.0)), ((5.3, 0.0, 2.0), (2.0, 5.0, 1.0))]
+    points = np.concatenate([_box_surface(rng, c, s, 4.0) for c, s in boxes])
+    poly = fit_polytopes(points, 1.0)
+    assert int(np.sum(poly.present)) == 2
+    x = rng.uniform((-1.0, -4.0, -1.0), (8.0, 4.0, 8.0), (5000, 3))
+    truth = np.min([_box_sdf(x, c, s) for c, s in boxes], axis=0)
+    np.testing.assert_allclose(np.asarray(polytope_distance(jnp.asarray(x, jnp.float32), poly)), truth, atol=1e-5)
+
+
+def test_a_rotated_box_is_closed_by_its_hull_planes():
+    rng = np.random.default_rng(1)
+    rot, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    size = np.array([1.0, 2.0, 0.6])
+    corners = 0.5 * size * np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)])
+    local = np.concatenate([_box_surface(rng, (0.0, 0.0, 0.0), size, 20.0), corners])  # the hull is the box
+    lower, upper, normals, offsets = fit_polytope(local @ rot.T)
+    assert len(offsets) >= 6  # the six face planes besides the bounding box's
+    poly = fit_polytopes(local @ rot.T, 1.0)
+    x_local = rng.uniform(-2.0, 2.0, (4000, 3))
+    truth = _box_sdf(x_local, (0.0, 0.0, 0.0), size)
+    d = np.asarray(polytope_distance(jnp.asarray(x_local @ rot.T, jnp.float32), poly))
+    assert np.all(d <= truth + 1e-5)  # a lower bound outside, minus at least the depth inside
+    inside_points = np.asarray(polytope_distance(jnp.asarray(local @ rot.T, jnp.float32), poly))
+    assert np.all(inside_points <= 1e-5)
+    far = np.abs(truth) > 0.15  # away from the surface the sides agree
+    assert np.all((d[far] < 0) == (truth[far] < 0))
+
+
+def test_clusters_split_at_the_link_distance():
+    rng = np.random.default_rng(2)
+    a = _box_surface(rng, (0.0, 0.0, 0.0), (1.0, 1.0, 1.0), 30.0)
+    b = _box_surface(rng, (1.8, 0.0, 0.0), (1.0, 1.0, 1.0), 30.0)  # 0.8 m apart
+    labels = clusters(np.concatenate([a, b]), 0.5)
+    assert len(np.unique(labels[: len(a)])) == 1 and len(np.unique(labels[len(a):])) == 1
+    assert labels[0] != labels[-1]
+    assert len(np.unique(clusters(np.concatenate([a, b]), 1.0))) == 1
+
+
+def test_capacity_keeps_the_largest_clusters_and_no_points_no_obstacle():
+    rng = np.random.default_rng(3)
+    small = [rng.normal(scale=0.05, size=(5, 3)) + (3.0 * i, 0.0, 0.0) for i in range(MAX_CLUSTERS)]
+    big = _box_surface(rng, (0.0, 10.0, 0.0), (1.0, 1.0, 1.0), 30.0)
+    poly = fit_polytopes(np.concatenate(small + [big]), 1.0)
+    assert bool(np.all(poly.present))
+    assert float(polytope_distance(jnp.asarray([[0.0, 10.0, 0.0]], jnp.float32), poly)[0]) == pytest.approx(-0.5)
+    empty = fit_polytopes(np.zeros((0, 3)), 1.0)
+    assert not bool(np.any(empty.present))
+    assert np.isinf(float(polytope_distance(jnp.zeros((1, 3)), empty)[0]))
+
+
+def test_static_rows_are_the_unmoved_real_ones():
+    prev = np.arange(12, dtype=np.float32).reshape(4, 3)
+    now = prev.copy()
+    now[1] += 0.01
+    mask = np.array([True, True, True, False])
+    np.testing.assert_array_equal(static_rows(now, mask, prev, np.array([True, True, False, True])),
+                                  [True, False, False, False])
+
+
+def test_robot_clearance_is_a_tight_lower_bound_of_the_body_clearance():
+    spec = RobotSpec(2)
+    centre, size = (1.2, 0.3, 2.0), (0.8, 0.8, 0.8)
+    g = np.linspace(-0.5, 0.5, 41)
+    a, b = np.meshgrid(g, g)
+    faces = []
+    for axis in range(3):
+        for sign in (-0.5, 0.5):
+            p = np.zeros((a.size, 3))
+            others = [i for i in range(3) if i != axis]
+            p[:, axis], p[:, others[0]], p[:, others[1]] = sign, a.ravel(), b.ravel()
+            faces.append(p * np.asarray(size) + centre)
+    grid = jnp.asarray(np.concatenate(faces), jnp.float32)  # 2 cm spacing on the faces
+    poly = fit_polytopes(np.asarray(grid)[::7], 1.0)
+    arcs = sample_arc_lengths(jax.random.PRNGKey(0), spec, (64, spec.n_links))
+    bound = np.asarray(robot_clearance(arcs, forward_kinematics(arcs, spec), spec, poly))
+    truth = np.asarray(jax.vmap(lambda arc: jnp.min(robot_signed_distance(grid, arc, spec)))(arcs))
+    clear = truth > 0.02  # configurations off the box (inside it the grid misses the depth)
+    assert clear.sum() > 20
+    assert np.all(bound[clear] <= truth[clear] + 1e-5)
+    slack = float(np.max(sphere_cover_radius(jnp.asarray(3.0), spec, COVER_SPHERES))) - spec.radius
+    assert np.all(bound[clear] >= truth[clear] - slack - 0.02)
+
+
+# A one-link robot bends through a slab that is observed only at its eight corners (dt = 1 s).
+SPEC = RobotSpec(1)
+ARC = np.full((1, 3), 2.0, np.float32)
+CROSSING = np.array([[0.3, -0.15, -0.15]], np.float32)
+SLAB = np.array([[x, y, z] for x in (-0.7, -0.6) for y in (-0.5, 0.5) for z in (1.7, 2.4)], np.float32)
+CONFIG = MPPIConfig(samples=16, horizon=3, covariance=1e-10, dt=1.0, max_points=64, broad_phase=False,
+                    safety_check=True, convex_link=1.0)
+
+
+def test_safety_check_sees_the_slab_between_its_corners():
+    shape = make_shape("exact", SPEC)
+    points, mask = jnp.asarray(SLAB), jnp.ones(len(SLAB), bool)
+    actions = jnp.asarray(CROSSING)[None]
+    corners_only = float(step_clearance(CONFIG, shape, jnp.asarray(ARC), actions, points, mask)[0])
+    assert corners_only > CONFIG.safety_margin  # the points alone let the crossing through
+    closed = float(step_clearance(CONFIG, shape, jnp.asarray(ARC), actions, points, mask,
+                                  polytopes=fit_polytopes(SLAB, CONFIG.convex_link))[0])
+    assert closed < 0.0
+
+    nominal = jnp.broadcast_to(jnp.asarray(CROSSING), (CONFIG.horizon, 1, 3))
+    state = init_state(SPEC, CONFIG, jax.random.PRNGKey(0))._replace(nominal=nominal)
+    goal = jnp.asarray([-1.24, 0.0, 1.33])
+    action, _, info = mppi_step(SPEC, CONFIG, shape, state, jnp.asarray(ARC), goal, points, mask,
+                                fit_polytopes(SLAB, CONFIG.convex_link))
+    assert int(info.action_choice) != 0
+    assert float(step_clearance(CONFIG, shape, jnp.asarray(ARC), action[None], points, mask,
+                                polytopes=fit_polytopes(SLAB, 1.0))[0]) >= CONFIG.safety_margin
+    unmodelled, _, _ = mppi_step(SPEC, dataclasses.replace(CONFIG, convex_link=0.0), shape, state,
+                                 jnp.asarray(ARC), goal, points, mask, fit_polytopes(SLAB, 1.0))
+    np.testing.assert_allclose(unmodelled, CROSSING, atol=1e-4)  # off: the polytopes are ignored
+
+
+def test_the_controller_models_only_points_that_stayed_put():
+    mppi = MPPI(SPEC, make_shape("exact", SPEC), CONFIG)
+    state = mppi.init(jax.random.PRNGKey(0))
+    moving = SLAB + np.array([0.0, 0.0, 3.0], np.float32)
+    cloud = np.concatenate([moving, SLAB])
+    points, mask = mppi.pad_points(cloud)
+    assert not bool(np.any(mppi.polytopes(state, points, mask).present))  # nothing seen before
+    _, state, _ = mppi.step(state, ARC, np.array([-1.24, 0.0, 1.33]), cloud)
+    points, mask = mppi.pad_points(np.concatenate([moving + 0.1, SLAB]))
+    poly = mppi.polytopes(state, points, mask)
+    assert int(np.sum(poly.present)) == 1
+    np.testing.assert_allclose(np.asarray(poly.lower[0]), SLAB.min(axis=0))
+    np.testing.assert_allclose(np.asarray(poly.upper[0]), SLAB.max(axis=0))
+
+
+def test_convex_link_is_validated():
+    with pytest.raises(ValueError, match="convex_link"):
+        MPPIConfig(convex_link=-1.0)
