@@ -1,4 +1,4 @@
-"""A convex model of the static part of an obstacle cloud: clusters as polytopes.
+"""A convex model of an obstacle cloud: its clusters of static and of moving points as polytopes.
 
 A cloud sampled at a few points per square metre on obstacle surfaces has holes
 wider than the robot (``ncedf.cloud``: up to 0.8 m across at the paper's 4
@@ -6,12 +6,14 @@ points per m^2), and a distance to the points alone lets a link slide into a
 face between them. Where the obstacles are convex (the cluttered scene's boxes)
 their surfaces can be closed from the points alone:
 
-* static points: the rows of the cloud that did not move since the previous
-  step (:func:`static_rows`; the scenarios observe row ``i`` as the same
-  physical point at every step, so a moving obstacle's rows change);
-* clusters: single linkage, points closer than ``link`` are on one obstacle
-  (:func:`clusters`). Obstacles closer than ``link`` merge into one cluster
-  and the gap between them is closed;
+* static and moving points: the rows of the cloud that did not move since the
+  previous step, and the others (:func:`static_rows`; the scenarios observe
+  row ``i`` as the same physical point at every step, so a moving obstacle's
+  rows change; at the first step every row counts as moving);
+* clusters: single linkage among the static and among the moving points:
+  points closer than ``link`` are on one obstacle (:func:`clusters`).
+  Obstacles closer than ``link`` merge into one cluster and the gap between
+  them is closed (a moving obstacle never merges with a static one);
 * each cluster's polytope (:func:`fit_polytope`): the axis-aligned box of its
   points, cut by the planes of its convex hull's largest faces (coplanar hull
   triangles merged; at most ``MAX_PLANES`` besides the box's six). Every
@@ -33,6 +35,10 @@ the depth inside. The robot's clearance to the polytopes
 (:func:`robot_clearance`) uses ``COVER_SPHERES`` balls per link whose union
 contains the link body (``ncedf.shapes.sphere_cover_radius``): ``min (d(c) - R)``
 over the balls is at most the clearance of the body.
+
+A moving cluster's polytope translates at the mean velocity of its points
+(the caller's estimate, e.g. from successive clouds), so a rollout state ``t``
+seconds ahead is scored against the polytope moved by ``t`` times it.
 
 Fixed sizes for the jitted controller: :class:`Polytopes` holds
 ``MAX_CLUSTERS`` clusters of ``MAX_PLANES`` planes; unused ones are masked. The
@@ -58,7 +64,7 @@ MAX_CLUSTERS = 8
 #: Hull planes per polytope (besides its bounding box's six).
 MAX_PLANES = 8
 #: Hull planes whose merged area is below this share of the hull's area are left out.
-MIN_PLANE_SHARE = 0.02
+MIN_PLANE_SHARE = 0.05
 #: Hull triangles whose unit normals and offsets agree to this (1, m) are one plane.
 PLANE_TOLERANCE = 1e-3
 #: Balls per link that cover the robot body for the clearance to the polytopes.
@@ -71,6 +77,7 @@ class Polytopes(NamedTuple):
 
     lower, upper: (C, 3) m.  normals: (C, K, 3) outward unit normals.  offsets: (C, K) m.
     valid: (C, K) bool.  present: (C,) bool; an absent cluster is no obstacle.
+    velocity: (C, 3) m/s, the polytope's translation (the mean velocity of its points).
     """
 
     lower: jnp.ndarray
@@ -79,6 +86,7 @@ class Polytopes(NamedTuple):
     offsets: jnp.ndarray
     valid: jnp.ndarray
     present: jnp.ndarray
+    velocity: jnp.ndarray
 
 
 def static_rows(points: np.ndarray, mask: np.ndarray, previous: np.ndarray, previous_mask: np.ndarray) -> np.ndarray:
@@ -86,12 +94,15 @@ def static_rows(points: np.ndarray, mask: np.ndarray, previous: np.ndarray, prev
     return mask & previous_mask & np.all(points == previous, axis=-1)
 
 
-def clusters(points: np.ndarray, link: float) -> np.ndarray:
-    """(P,) int cluster label of each point (P, 3): single linkage at distance ``link``, m."""
+def clusters(points: np.ndarray, link: float, groups: np.ndarray | None = None) -> np.ndarray:
+    """(P,) int cluster label of each point (P, 3): single linkage at distance ``link``, m,
+    within each group (``groups`` (P,) labels; None = one group)."""
     n = len(points)
     if n == 0:
         return np.zeros(0, int)
     pairs = cKDTree(points).query_pairs(link, output_type="ndarray")
+    if groups is not None:
+        pairs = pairs[groups[pairs[:, 0]] == groups[pairs[:, 1]]]
     graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
     return connected_components(graph, directed=False)[1]
 
@@ -130,10 +141,13 @@ def fit_polytope(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray
     return lower, upper, hull_n[keep][:MAX_PLANES], hull_b[keep][:MAX_PLANES]
 
 
-def fit_polytopes(points: np.ndarray, link: float) -> Polytopes:
-    """Polytopes of the clusters of ``points`` (S, 3) at single-linkage distance ``link`` (m).
+def fit_polytopes(points: np.ndarray, link: float, groups: np.ndarray | None = None,
+                  velocity: np.ndarray | None = None) -> Polytopes:
+    """Polytopes of the clusters of ``points`` (S, 3) at single-linkage distance ``link`` (m),
+    within each group (``groups`` (S,) labels, e.g. static or moving; None = one group).
 
-    The MAX_CLUSTERS largest clusters are kept; padded and masked to the fixed capacity.
+    velocity: (S, 3) m/s of the points (None = at rest); a polytope moves at the mean of its
+    points'. The MAX_CLUSTERS largest clusters are kept; padded and masked to the fixed capacity.
     """
     lower = np.zeros((MAX_CLUSTERS, 3), np.float32)
     upper = np.zeros((MAX_CLUSTERS, 3), np.float32)
@@ -141,37 +155,46 @@ def fit_polytopes(points: np.ndarray, link: float) -> Polytopes:
     offsets = np.zeros((MAX_CLUSTERS, MAX_PLANES), np.float32)
     valid = np.zeros((MAX_CLUSTERS, MAX_PLANES), bool)
     present = np.zeros(MAX_CLUSTERS, bool)
-    labels = clusters(np.asarray(points, np.float64), link)
+    moving = np.zeros((MAX_CLUSTERS, 3), np.float32)
+    labels = clusters(np.asarray(points, np.float64), link, groups)
     if len(labels):
         sizes = np.bincount(labels)
         for c, label in enumerate(np.argsort(-sizes, kind="stable")[:MAX_CLUSTERS]):
-            lower[c], upper[c], n, b = fit_polytope(points[labels == label])
+            members = labels == label
+            lower[c], upper[c], n, b = fit_polytope(points[members])
             normals[c, : len(b)], offsets[c, : len(b)], valid[c, : len(b)] = n, b, True
             present[c] = True
-    return Polytopes(*(jnp.asarray(a) for a in (lower, upper, normals, offsets, valid, present)))
+            if velocity is not None:
+                moving[c] = velocity[members].mean(axis=0)
+    return Polytopes(*(jnp.asarray(a) for a in (lower, upper, normals, offsets, valid, present, moving)))
 
 
-def polytope_distance(x: jnp.ndarray, polytopes: Polytopes) -> jnp.ndarray:
-    """(...,) lower bound of the distance from points x (..., 3) to the nearest polytope
-    (negative inside: minus the depth), m; +inf without polytopes.
+def polytope_distance(x: jnp.ndarray, polytopes: Polytopes, t=0.0) -> jnp.ndarray:
+    """(...,) lower bound of the distance from points x (..., 3) to the nearest polytope,
+    each moved by ``t`` times its velocity (t: s, broadcastable to (...,)), m; negative
+    inside (minus the depth); +inf without polytopes.
 
     Per polytope: the larger of the signed distance to its box (exact) and of the
     planes' ``n_k . x - b_k``; a lower bound because the polytope lies in each.
     Written per component so XLA fuses it with the reductions (no (..., C, K) array).
     """
     p = polytopes
+    t = jnp.asarray(t, x.dtype)[..., None]  # (..., 1)
+    rel = [x[..., None, i] - t * p.velocity[:, i] for i in range(3)]  # 3 x (..., C)
     centre, half = 0.5 * (p.upper + p.lower), 0.5 * (p.upper - p.lower)  # (C, 3)
-    q = [jnp.abs(x[..., None, i] - centre[:, i]) - half[:, i] for i in range(3)]  # 3 x (..., C)
+    q = [jnp.abs(rel[i] - centre[:, i]) - half[:, i] for i in range(3)]
     outside = jnp.sqrt(sum(jnp.maximum(qi, 0.0) ** 2 for qi in q))
     box = outside + jnp.minimum(jnp.maximum(jnp.maximum(q[0], q[1]), q[2]), 0.0)
     n = p.normals
-    s = sum(x[..., None, None, i] * n[..., i] for i in range(3)) - p.offsets  # (..., C, K)
+    s = sum(rel[i][..., None] * n[..., i] for i in range(3)) - p.offsets  # (..., C, K)
     planes = jnp.max(jnp.where(p.valid, s, -jnp.inf), axis=-1)
     return jnp.min(jnp.where(p.present, jnp.maximum(box, planes), jnp.inf), axis=-1)
 
 
-def robot_clearance(arcs: jnp.ndarray, frames: jnp.ndarray, spec: RobotSpec, polytopes: Polytopes) -> jnp.ndarray:
-    """(B...,) lower bound of the robot body's clearance to the polytopes, m.
+def robot_clearance(arcs: jnp.ndarray, frames: jnp.ndarray, spec: RobotSpec, polytopes: Polytopes,
+                    t=0.0) -> jnp.ndarray:
+    """(B...,) lower bound of the robot body's clearance to the polytopes, each moved by
+    ``t`` times its velocity (t: s, broadcastable to (B...,)), m.
 
     Args:
       arcs: (B..., M, 3) arc lengths, m.  frames: (B..., M + 1, 4, 4) their forward kinematics.
@@ -181,5 +204,6 @@ def robot_clearance(arcs: jnp.ndarray, frames: jnp.ndarray, spec: RobotSpec, pol
     for _ in range(arcs.ndim - 2):
         prepare = jax.vmap(prepare)
     geom = prepare(arcs, frames)
-    d = polytope_distance(geom.centres, polytopes) - geom.radius[..., None]  # (B..., M, n)
+    t = jnp.asarray(t, arcs.dtype)[..., None, None]
+    d = polytope_distance(geom.centres, polytopes, t) - geom.radius[..., None]  # (B..., M, n)
     return jnp.min(d, axis=(-2, -1))

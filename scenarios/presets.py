@@ -17,48 +17,50 @@ sampling (two free rates per link, the third minus their sum, so it moves at up
 to 0.6 m/s), a temperature chosen per step for an effective sample size of 2%
 of the rollouts (instead of lambda = 0.02, which leaves about one sample), and
 the safety check of the executed action over the step. Same rollouts and
-horizons as the release. Among the dynamic spheres it also races
-(``scenario_fields``): the plan is updated with the unclipped samples, so it
-can stay at the top rates (``MPPIConfig.update_unclipped``), and a rollout is
-charged its closest goal distance so far (``MPPIConfig.goal_reach``). The
-spheres are observed completely (centres and radius), so speed only shortens
-the time they have to hit the robot: over 200 environments per goal kind
-(``bench/closed_loop.py --scenarios spheres --envs 200 --goals fixed,random``)
-the fixed goal is reached at a median step of 11 instead of 20 and 5
-episodes collide instead of 12 (4 of those 5 no motion avoids:
-``bench/sphere_oracle.py``); random goals 13 instead of 21 and 4 collisions
-instead of 7. In the cluttered scene the same two changes make the robot
-pass through the sparse cloud's holes: 20 seeds per link count collide 17 /
-14 / 7 times with 4 / 5 / 7 links, ``goal_reach`` alone 20 / 19 / 0 and
-``update_unclipped`` alone 4 / 5 / 4 (though the 4-link robot then reaches
-the goal at a median step of 44 instead of 226), so there ``ours`` keeps to
-the release's update and goal cost.
+horizons as the release. Per scenario (``scenario_fields``):
 
-``ours`` is the default because, judged exactly on the cluttered scene
-(``bench/closed_loop.py --seeds 3 --envs 10``), it reaches the goal with every
-seed and no collision: 4 links 3 of 3 (release 2 of 3 and 1 collision, paper 0
-of 3), 5 links 3 of 3 (release 1 of 3, paper 0 of 3), 7 links 3 of 3 (all
-three controllers); on 10 dynamic-sphere environments all three succeed 9
-times (the tenth collision cannot be avoided: a sphere sweeps through the
-first link's base). Its solver time is within 1.1x the paper controller's at
-the same rollouts and horizon. It is not yet safe everywhere: over 20 seeds
-(``python -m scenarios.sweep --scenario cluttered --links 4,5,7 --seeds 20``)
-4 links succeed 13 times and stall 7 times 1.4 m short, 5 links succeed 19
-times and collide once (seed 3: the link grazes a box corner 0.52 m from the
-nearest observed point), 7 links succeed 20 times. The surface model of the
-cloud (``MPPIConfig.fill_edge``, ``ncedf.cloud``) with a 0.15 m check margin
-avoids that collision but makes 4 links collide or stall
-(``bench/closed_loop.py`` docstring), so it is not part of ``ours``. Nor is
-the stall escape (``MPPIConfig.stall_steps``): over 4-link seeds 0-16 it
-turns 10 successes and 7 stalls into 12 successes, 4 stalls and a collision
-(its larger steps hit a hole of box 2's cloud). All presets use the broad
-phase's default selection (``MPPIConfig.selection`` "mean"); at 16 observed
-points per m^2 it over-estimates some rollout distances and ``ours`` collides
-in 6 of 20 5-link seeds, while the per-state selection avoids those
-collisions but stalls more and costs 2-3x the time (``bench/closed_loop.py``
-docstring, ``bench/broad_phase.py``).
+* among the dynamic spheres it races: the plan is updated with the unclipped
+  samples, so it can stay at the top rates (``MPPIConfig.update_unclipped``),
+  and a rollout is charged its closest goal distance so far
+  (``MPPIConfig.goal_reach``). The spheres are observed completely (centres
+  and radius), so speed only shortens the time they have to hit the robot:
+  over 200 environments per goal kind (``bench/closed_loop.py --scenarios
+  spheres --envs 200 --goals fixed,random``) the fixed goal is reached at a
+  median step of 11 instead of 20 and 5 episodes collide instead of 12 (4 of
+  those 5 no motion avoids: ``bench/sphere_oracle.py``); random goals 13
+  instead of 21 and 4 collisions instead of 7;
+* in the cluttered scene it closes the cloud: the convex model of
+  ``ncedf.convex`` (``MPPIConfig.convex_link`` = ``CONVEX_LINK``) scores the
+  robot's clearance to each cluster's polytope, which for the scene's boxes is
+  the box itself, so the robot no longer slides into a face between its sparse
+  points; with that clearance it also races (``update_unclipped``) and is
+  repelled less (collision weights ``CLUTTERED_W_COLL`` instead of 1.1, which
+  kept the 4-link robot waiting for the spheres to pass). Over 20 seeds per
+  link count (``python -m scenarios.sweep --scenario cluttered --links 4,5,7
+  --seeds 20``): 4 links 16 successes (median reach step 142; before the
+  model 13, median 226, and 7 stuck), 3 stuck 1.3-1.8 m short and 1
+  collision; 5 links 19 successes and 1 collision (median 28; before also 19
+  and 1, a box corner, median 47); 7 links 20 (median 12; before 18). Both collisions are sphere 0 running into the robot while it
+  waits near the goal (L4 seed 6 at t = 4.8 s, pressed 0.09 m from box 0; L5
+  seed 19 at t = 14.3 s), none a box. At 16 points per m^2 (``--option density=16``):
+  RESULTS_D16. Racing without the model (``update_unclipped`` alone) collided
+  4 / 5 / 4 times, through the holes of the cloud (``bench/closed_loop.py``
+  docstring). The model assumes convex obstacles (a cluster's concavities are
+  closed), so it is not used in the other scenarios (the charging station and
+  custom worlds may hold non-convex meshes).
 
-All share the weights (12, 1.1, 50), epsilon 0.01 and the safety margin 0.05 m;
+``ours`` is the default because, judged exactly, it is the only one of the
+three that reaches the cluttered scene's goal with 4 and 5 links (the paper's
+settings stay stuck, the release stalls or collides; ``results/README.md``,
+Table IV) and among the dynamic spheres it reaches the goal about twice as fast
+as the release and collides less than half as often. Its solver time is
+TIMING. All presets use the broad phase's default selection
+(``MPPIConfig.selection`` "mean"); at 16 observed points per m^2 it
+over-estimates some rollout distances (``bench/broad_phase.py``), which the
+convex model's exact clearance covers in the cluttered scene.
+
+All share the weights (12, 1.1, 50) (``ours`` in the cluttered scene: 12, 0.4, 50),
+epsilon 0.01 and the safety margin 0.05 m;
 when spheres are observed by their centres, the sphere radius is added to the
 margin (``World.margin_extra``).
 
@@ -82,6 +84,13 @@ from ncedf.mppi import MPPIConfig
 POINT_BUCKET = 256
 #: Links above which the release shortens the cluttered-scene horizon.
 RELEASE_LONG_ROBOT = 6
+#: Single-linkage distance of ``ours``'s convex model in the cluttered scene (MPPIConfig.convex_link), m:
+#: above the longest edge of a box's minimum spanning tree at 4 points per m^2 (0.88 m over 40 seeds),
+#: below the 1.39 m between its closest boxes.
+CONVEX_LINK = 1.0
+#: ``ours``'s collision weights (running and terminal) in the cluttered scene, where the convex model
+#: gives the true clearance to the boxes (the release's 1.1 keeps the 4-link robot too far from them).
+CLUTTERED_W_COLL = 0.4
 
 
 @dataclasses.dataclass(frozen=True)
@@ -148,14 +157,17 @@ PRESETS: dict[str, Preset] = {
             "ours",
             "release + release sampling (third rate minus the other two) + temperature for an effective "
             "sample size of 0.02 N + safety check of the executed action over the step; among the spheres "
-            "also the unclipped plan update and the closest-approach goal cost; release sizes",
+            "also the unclipped plan update and the closest-approach goal cost; in the cluttered scene the "
+            "convex model of the cloud, the unclipped plan update and collision weights 0.4; release sizes",
             RELEASE_FIELDS + (
                 ("sampling", "release"),
                 ("target_ess", 0.02),
                 ("safety_check", True),
             ),
             _release_sizes,
-            (("spheres", (("update_unclipped", True), ("goal_reach", True))),),
+            (("spheres", (("update_unclipped", True), ("goal_reach", True))),
+             ("cluttered", (("update_unclipped", True), ("convex_link", CONVEX_LINK), ("w_coll", CLUTTERED_W_COLL),
+                            ("w_coll_terminal", CLUTTERED_W_COLL)))),
         ),
     )
 }

@@ -157,19 +157,38 @@ def test_safety_check_sees_the_slab_between_its_corners():
     np.testing.assert_allclose(unmodelled, CROSSING, atol=1e-4)  # off: the polytopes are ignored
 
 
-def test_the_controller_models_only_points_that_stayed_put():
+def test_the_controller_clusters_moving_and_static_points_apart():
     mppi = MPPI(SPEC, make_shape("exact", SPEC), CONFIG)
     state = mppi.init(jax.random.PRNGKey(0))
-    moving = SLAB + np.array([0.0, 0.0, 3.0], np.float32)
-    cloud = np.concatenate([moving, SLAB])
-    points, mask = mppi.pad_points(cloud)
-    assert not bool(np.any(mppi.polytopes(state, points, mask).present))  # nothing seen before
+    above = SLAB + np.array([0.0, 0.0, 0.8], np.float32)  # 0.1 m above the slab: within the link distance
+    cloud = np.concatenate([above, SLAB])
+    poly = mppi.polytopes(state, *mppi.pad_points(cloud))
+    assert int(np.sum(poly.present)) == 1  # nothing seen before: all one moving cluster
+    np.testing.assert_allclose(np.asarray(poly.upper[0]), above.max(axis=0))
     _, state, _ = mppi.step(state, ARC, np.array([-1.24, 0.0, 1.33]), cloud)
-    points, mask = mppi.pad_points(np.concatenate([moving + 0.1, SLAB]))
-    poly = mppi.polytopes(state, points, mask)
-    assert int(np.sum(poly.present)) == 1
-    np.testing.assert_allclose(np.asarray(poly.lower[0]), SLAB.min(axis=0))
-    np.testing.assert_allclose(np.asarray(poly.upper[0]), SLAB.max(axis=0))
+    moved = above + np.array([0.0, 0.0, 0.05], np.float32)
+    poly = mppi.polytopes(state, *mppi.pad_points(np.concatenate([moved, SLAB])))
+    assert int(np.sum(poly.present)) == 2
+    bounds = sorted((tuple(np.asarray(poly.lower[c])), tuple(np.asarray(poly.upper[c]))) for c in range(2))
+    np.testing.assert_allclose(bounds[0], [SLAB.min(axis=0), SLAB.max(axis=0)])
+    np.testing.assert_allclose(bounds[1], [moved.min(axis=0), moved.max(axis=0)])
+    speeds = sorted(float(np.asarray(poly.velocity[c])[2]) for c in range(2))
+    np.testing.assert_allclose(speeds, [0.0, 0.05 / CONFIG.dt], atol=1e-6)
+
+
+def test_a_moving_polytope_is_scored_where_it_will_be():
+    rng = np.random.default_rng(4)
+    corners = 0.5 * np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)])
+    points = np.concatenate([_box_surface(rng, (0.0, 0.0, 0.0), (1.0, 1.0, 1.0), 30.0), corners])
+    v = np.array([0.3, -0.2, 0.5])
+    moving = fit_polytopes(points, 1.0, velocity=np.tile(v, (len(points), 1)))
+    at_rest = fit_polytopes(points, 1.0)
+    x = rng.uniform(-3.0, 3.0, (500, 3)).astype(np.float32)
+    t = rng.uniform(0.0, 2.0, 500).astype(np.float32)
+    np.testing.assert_allclose(np.asarray(polytope_distance(jnp.asarray(x), moving, jnp.asarray(t))),
+                               _box_sdf(x - t[:, None] * v, (0.0, 0.0, 0.0), (1.0, 1.0, 1.0)), atol=1e-5)
+    np.testing.assert_allclose(np.asarray(polytope_distance(jnp.asarray(x), at_rest, jnp.asarray(t))),
+                               _box_sdf(x, (0.0, 0.0, 0.0), (1.0, 1.0, 1.0)), atol=1e-5)
 
 
 def test_convex_link_is_validated():

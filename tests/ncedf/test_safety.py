@@ -282,12 +282,15 @@ def test_paper_and_release_presets_are_unchanged():
         assert not config.predict_motion
 
 
-def test_ours_moves_at_its_top_rates_among_the_spheres_only():
+def test_ours_per_scenario_fields():
     spheres = mppi_config("ours", "spheres", 4, n_points=8, margin_extra=0.7)
-    assert spheres.update_unclipped and spheres.goal_reach
-    for scenario in ("cluttered", "charging", "custom"):
+    cluttered = mppi_config("ours", "cluttered", 4, n_points=8)
+    assert spheres.update_unclipped and spheres.goal_reach and spheres.convex_link == 0
+    assert cluttered.update_unclipped and not cluttered.goal_reach and cluttered.convex_link > 0
+    assert cluttered.w_coll == cluttered.w_coll_terminal < spheres.w_coll
+    for scenario in ("charging", "custom"):
         other = mppi_config("ours", scenario, 4, n_points=8, margin_extra=0.7)
-        assert not other.update_unclipped and not other.goal_reach
+        assert not other.update_unclipped and not other.goal_reach and other.convex_link == 0
         assert dataclasses.replace(other, update_unclipped=True, goal_reach=True, samples=spheres.samples,
                                    horizon=spheres.horizon) == spheres
 
