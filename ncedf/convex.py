@@ -60,7 +60,7 @@ from ncedf.robot import RobotSpec
 from ncedf.shapes import SphereShape
 
 #: Clusters a :class:`Polytopes` holds (the largest are kept).
-MAX_CLUSTERS = 6
+MAX_CLUSTERS = 8
 #: Hull planes per polytope (besides its bounding box's six).
 MAX_PLANES = 8
 #: Hull planes whose merged area is below this share of the hull's area are left out.
@@ -185,13 +185,10 @@ def polytope_distance(x: jnp.ndarray, polytopes: Polytopes, t=0.0) -> jnp.ndarra
     q = [jnp.abs(rel[i] - centre[:, i]) - half[:, i] for i in range(3)]
     outside = jnp.sqrt(sum(jnp.maximum(qi, 0.0) ** 2 for qi in q))
     box = outside + jnp.minimum(jnp.maximum(jnp.maximum(q[0], q[1]), q[2]), 0.0)
-
-    def planes():  # (..., C); skipped when no polytope has a plane besides its box's
-        s = sum(rel[i][..., None] * p.normals[..., i] for i in range(3)) - p.offsets  # (..., C, K)
-        return jnp.max(jnp.where(p.valid, s, -jnp.inf), axis=-1)
-
-    cut = jax.lax.cond(jnp.any(p.valid), planes, lambda: jnp.full_like(box, -jnp.inf))
-    return jnp.min(jnp.where(p.present, jnp.maximum(box, cut), jnp.inf), axis=-1)
+    n = p.normals
+    s = sum(rel[i][..., None] * n[..., i] for i in range(3)) - p.offsets  # (..., C, K)
+    planes = jnp.max(jnp.where(p.valid, s, -jnp.inf), axis=-1)
+    return jnp.min(jnp.where(p.present, jnp.maximum(box, planes), jnp.inf), axis=-1)
 
 
 def robot_clearance(arcs: jnp.ndarray, frames: jnp.ndarray, spec: RobotSpec, polytopes: Polytopes,

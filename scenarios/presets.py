@@ -56,9 +56,9 @@ three that reaches the cluttered scene's goal with 4 and 5 links (the paper's
 settings stay stuck, the release stalls or collides; ``results/README.md``,
 Table IV) and among the dynamic spheres it reaches the goal about twice as fast
 as the release and collides less than half as often. Its solver time per
-step is 1.9x the paper controller's at the same rollouts and horizon in the
-cluttered scene (``bench/closed_loop.py --timing 8``: L4 141 / 74 ms, L5 171 /
-92, L7 78 / 30 (2.6x); the convex clearance of 10 cover spheres per link for
+step is 2.0-2.9x the paper controller's at the same rollouts and horizon in
+the cluttered scene (``bench/closed_loop.py --timing 8``: L4 147 / 75 ms, L5
+200 / 93, L7 93 / 32: the convex clearance of 10 cover spheres per link for
 every rollout state) and within 1.1x among the spheres. All presets use the broad phase's default selection
 (``MPPIConfig.selection`` "mean"); at 16 observed points per m^2 it
 over-estimates some rollout distances (``bench/broad_phase.py``), which the
