@@ -173,7 +173,12 @@ short instead of colliding, seed 3 reaches the goal at step 275. That is
 ``scenarios/presets.py``. Without the model (``--variants ours-convex
 --scenarios cluttered --seeds 20``: racing and collision weights 0.4 on the
 points alone) 4 links collide 20 times of 20, 5 links 16 (4 successes), 7
-links 7 (13 successes).
+links 7 (13 successes). Its other two parts, seeds 0-9 (``--seeds 10
+--variants ours-weights,ours-unclipped``), success / stuck and median reach,
+none collided: without racing (``ours-unclipped``) L4 2 / 8 (210), L5 10 / 0
+(40), L7 10 / 0 (20); with the release's collision weights 1.1
+(``ours-weights``) L4 7 / 3 (185), L5 4 / 6 (148), L7 10 / 0 (14); ``ours``
+on the same seeds L4 8 / 1 and 1 collision (115), L5 10 (24), L7 10 (12.5).
 
 ``--timing 8`` with the surface model: L4 131.4 / 111.1 ms (1.18), L7 58.5 /
 41.2 (1.42), spheres 84.3 / 80.8 (1.04) (before it: L4 64.8 / 62.8 (1.03),
