@@ -686,7 +686,7 @@ class MPPI:
         points, mask = np.asarray(points), np.asarray(mask)
         previous, previous_mask = np.asarray(state.previous), np.asarray(state.previous_mask)
         static = static_rows(points, mask, previous, previous_mask)
-        velocity = np.where((mask & previous_mask)[:, None], (points - previous) / self.config.dt, 0.0)
+        velocity = np.asarray(cloud_velocity(points, mask, previous, previous_mask, self.config.dt))
         return fit_polytopes(points[mask], self.config.convex_link, static[mask], velocity[mask])
 
     def step(self, state: MPPIState, arc, goal, obstacle_points=None):

@@ -45,11 +45,12 @@ horizons as the release. Per scenario (``scenario_fields``):
   the goal (L4 seed 6 at t = 4.8 s, pressed 0.09 m from box 0; L5 seed 19 at
   t = 14.3 s), none a box. At 16 points per m^2 (``--option density=16``, 10
   seeds): 8 / 10 / 10 successes, 2 stuck with 4 links, no collision (before,
-  20 seeds: 1, and 14 with 6 collisions). Racing without the model (``update_unclipped`` alone) collided
-  4 / 5 / 4 times, through the holes of the cloud (``bench/closed_loop.py``
-  docstring). The model assumes convex obstacles (a cluster's concavities are
-  closed), so it is not used in the other scenarios (the charging station and
-  custom worlds may hold non-convex meshes).
+  20 seeds: 1, and 14 with 6 collisions). Racing without the model
+  (``update_unclipped`` alone) collided 4 / 5 / 4 times, through the holes of
+  the cloud (``bench/closed_loop.py`` docstring). The model assumes convex
+  obstacles (a cluster's concavities are closed), so it is not used in the
+  other scenarios (the charging station and custom worlds may hold non-convex
+  meshes).
 
 ``ours`` is the default because, judged exactly, it is the only one of the
 three that reaches the cluttered scene's goal with 4 and 5 links (the paper's
@@ -59,15 +60,15 @@ as the release and collides less than half as often. Its solver time per
 step is 2.0-2.9x the paper controller's at the same rollouts and horizon in
 the cluttered scene (``bench/closed_loop.py --timing 8``: L4 147 / 75 ms, L5
 200 / 93, L7 93 / 32: the convex clearance of 10 cover spheres per link for
-every rollout state) and within 1.1x among the spheres. All presets use the broad phase's default selection
-(``MPPIConfig.selection`` "mean"); at 16 observed points per m^2 it
-over-estimates some rollout distances (``bench/broad_phase.py``), which the
-convex model's exact clearance covers in the cluttered scene.
+every rollout state) and within 1.1x among the spheres. All presets use the
+broad phase's default selection (``MPPIConfig.selection`` "mean"); at 16
+observed points per m^2 it over-estimates some rollout distances
+(``bench/broad_phase.py``), which the convex model's exact clearance covers in
+the cluttered scene.
 
-All share the weights (12, 1.1, 50) (``ours`` in the cluttered scene: 12, 0.4, 50),
-epsilon 0.01 and the safety margin 0.05 m;
-when spheres are observed by their centres, the sphere radius is added to the
-margin (``World.margin_extra``).
+All share the weights (12, 1.1, 50) (``ours`` in the cluttered scene: 12, 0.4,
+50), epsilon 0.01 and the safety margin 0.05 m; when spheres are observed by
+their centres, the sphere radius is added to the margin (``World.margin_extra``).
 
 A preset is one entry of ``PRESETS``: its MPPIConfig fields for all scenarios,
 more fields per scenario, and a function ``(scenario, links) -> (samples,
