@@ -47,6 +47,7 @@ largest clusters (by point count) are kept when there are more.
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import jax
@@ -171,24 +172,44 @@ def fit_polytopes(points: np.ndarray, link: float, groups: np.ndarray | None = N
 
 def polytope_distance(x: jnp.ndarray, polytopes: Polytopes, t=0.0) -> jnp.ndarray:
     """(...,) lower bound of the distance from points x (..., 3) to the nearest polytope,
-    each moved by ``t`` times its velocity (t: s, broadcastable to (...,)), m; negative
+    each moved by ``t`` times its velocity (t: s, broadcastable with x[..., 0]), m; negative
     inside (minus the depth); +inf without polytopes.
 
     Per polytope: the larger of the signed distance to its box (exact) and of the
     planes' ``n_k . x - b_k``; a lower bound because the polytope lies in each.
-    Written per component so XLA fuses it with the reductions (no (..., C, K) array).
+    Written per component and unrolled over the clusters and planes, so every operation
+    is elementwise over the points and XLA fuses each cluster into one loop; a cluster
+    runs only what it has (``lax.switch``: absent, box, box and planes), since the
+    arithmetic of the capacity is the cost (the cluttered scene fills 4 or 5 of the
+    ``MAX_CLUSTERS`` slots, its boxes without planes).
     """
     p = polytopes
-    t = jnp.asarray(t, x.dtype)[..., None]  # (..., 1)
-    rel = [x[..., None, i] - t * p.velocity[:, i] for i in range(3)]  # 3 x (..., C)
-    centre, half = 0.5 * (p.upper + p.lower), 0.5 * (p.upper - p.lower)  # (C, 3)
-    q = [jnp.abs(rel[i] - centre[:, i]) - half[:, i] for i in range(3)]
-    outside = jnp.sqrt(sum(jnp.maximum(qi, 0.0) ** 2 for qi in q))
-    box = outside + jnp.minimum(jnp.maximum(jnp.maximum(q[0], q[1]), q[2]), 0.0)
-    n = p.normals
-    s = sum(rel[i][..., None] * n[..., i] for i in range(3)) - p.offsets  # (..., C, K)
-    planes = jnp.max(jnp.where(p.valid, s, -jnp.inf), axis=-1)
-    return jnp.min(jnp.where(p.present, jnp.maximum(box, planes), jnp.inf), axis=-1)
+    t = jnp.asarray(t, x.dtype)
+    xs = [x[..., i] for i in range(3)]
+
+    def box(c):
+        rel = [xs[i] - t * p.velocity[c, i] for i in range(3)]
+        centre, half = 0.5 * (p.upper[c] + p.lower[c]), 0.5 * (p.upper[c] - p.lower[c])
+        q = [jnp.abs(rel[i] - centre[i]) - half[i] for i in range(3)]
+        outside = jnp.sqrt(sum(jnp.maximum(qi, 0.0) ** 2 for qi in q))
+        return rel, outside + jnp.minimum(jnp.maximum(jnp.maximum(q[0], q[1]), q[2]), 0.0)
+
+    def box_only(c, nearest):
+        return jnp.minimum(nearest, box(c)[1])
+
+    def box_and_planes(c, nearest):
+        rel, d = box(c)
+        for k in range(p.valid.shape[1]):
+            s = sum(rel[i] * p.normals[c, k, i] for i in range(3)) - p.offsets[c, k]
+            d = jnp.maximum(d, jnp.where(p.valid[c, k], s, -jnp.inf))
+        return jnp.minimum(nearest, d)
+
+    nearest = jnp.full(jnp.broadcast_shapes(xs[0].shape, t.shape), jnp.inf, x.dtype)
+    for c in range(p.present.shape[0]):
+        kind = jnp.where(p.present[c], jnp.where(jnp.any(p.valid[c]), 2, 1), 0)
+        branches = [lambda n: n, functools.partial(box_only, c), functools.partial(box_and_planes, c)]
+        nearest = jax.lax.switch(kind, branches, nearest)
+    return nearest
 
 
 def robot_clearance(arcs: jnp.ndarray, frames: jnp.ndarray, spec: RobotSpec, polytopes: Polytopes,
