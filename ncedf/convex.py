@@ -68,6 +68,8 @@ MAX_PLANES = 8
 MIN_PLANE_SHARE = 0.05
 #: Hull triangles whose unit normals and offsets agree to this (1, m) are one plane.
 PLANE_TOLERANCE = 1e-3
+#: Plane counts a polytope's distance is compiled for (its valid planes rounded up to one of them).
+PLANE_BUCKETS = (0, 2, 4, MAX_PLANES)
 #: Balls per link that cover the robot body for the clearance to the polytopes.
 COVER_SPHERES = 10
 
@@ -179,35 +181,33 @@ def polytope_distance(x: jnp.ndarray, polytopes: Polytopes, t=0.0) -> jnp.ndarra
     planes' ``n_k . x - b_k``; a lower bound because the polytope lies in each.
     Written per component and unrolled over the clusters and planes, so every operation
     is elementwise over the points and XLA fuses each cluster into one loop; a cluster
-    runs only what it has (``lax.switch``: absent, box, box and planes), since the
-    arithmetic of the capacity is the cost (the cluttered scene fills 4 or 5 of the
-    ``MAX_CLUSTERS`` slots, its boxes without planes).
+    runs only what it has (``lax.switch``: absent, or its box and its plane slots up to
+    the last valid one, rounded up to ``PLANE_BUCKETS``), since the arithmetic of the
+    capacity is the cost (the cluttered scene fills 4 or 5 of the ``MAX_CLUSTERS``
+    slots, its boxes without planes, its spheres with 2-4).
     """
     p = polytopes
     t = jnp.asarray(t, x.dtype)
     xs = [x[..., i] for i in range(3)]
 
-    def box(c):
+    def cluster(c, planes, nearest):  # box c cut by its first ``planes`` plane slots
         rel = [xs[i] - t * p.velocity[c, i] for i in range(3)]
         centre, half = 0.5 * (p.upper[c] + p.lower[c]), 0.5 * (p.upper[c] - p.lower[c])
         q = [jnp.abs(rel[i] - centre[i]) - half[i] for i in range(3)]
         outside = jnp.sqrt(sum(jnp.maximum(qi, 0.0) ** 2 for qi in q))
-        return rel, outside + jnp.minimum(jnp.maximum(jnp.maximum(q[0], q[1]), q[2]), 0.0)
-
-    def box_only(c, nearest):
-        return jnp.minimum(nearest, box(c)[1])
-
-    def box_and_planes(c, nearest):
-        rel, d = box(c)
-        for k in range(p.valid.shape[1]):
+        d = outside + jnp.minimum(jnp.maximum(jnp.maximum(q[0], q[1]), q[2]), 0.0)
+        for k in range(planes):
             s = sum(rel[i] * p.normals[c, k, i] for i in range(3)) - p.offsets[c, k]
             d = jnp.maximum(d, jnp.where(p.valid[c, k], s, -jnp.inf))
         return jnp.minimum(nearest, d)
 
+    slots = p.valid.shape[1]
+    buckets = tuple(sorted({min(b, slots) for b in PLANE_BUCKETS} | {slots}))
     nearest = jnp.full(jnp.broadcast_shapes(xs[0].shape, t.shape), jnp.inf, x.dtype)
     for c in range(p.present.shape[0]):
-        kind = jnp.where(p.present[c], jnp.where(jnp.any(p.valid[c]), 2, 1), 0)
-        branches = [lambda n: n, functools.partial(box_only, c), functools.partial(box_and_planes, c)]
+        used = jnp.max(jnp.where(p.valid[c], jnp.arange(1, slots + 1), 0), initial=0)  # slots up to the last valid
+        kind = jnp.where(p.present[c], 1 + jnp.searchsorted(jnp.asarray(buckets), used), 0)
+        branches = [lambda n: n] + [functools.partial(cluster, c, b) for b in buckets]
         nearest = jax.lax.switch(kind, branches, nearest)
     return nearest
 
