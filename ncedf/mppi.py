@@ -84,6 +84,13 @@ the robot body's clearance to the polytopes, each moved at the mean velocity of
 its points (their displacement since the previous cloud over dt; zero at the
 first step) to the state's time. :meth:`MPPI.step` fits the polytopes (numpy,
 about 2 ms for 500 points) and passes them to the step.
+With ``hold_time`` > 0 a rollout's last state is also scored as if the robot
+held it for ``hold_time`` more seconds: its clearance to the polytopes moved to
+``HOLD_SAMPLES`` times evenly spaced over ``(H dt, H dt + hold_time]``. Static
+polytopes give the same clearance as at ``H dt``; a moving one that would run
+into the held state makes it costly, so the robot does not end its plan, or
+wait, in the path of an obstacle that the horizon sees only approaching, and it
+dodges behind the obstacle rather than ahead of it.
 
 Moving obstacles (``predict_motion``): the controller keeps the previous
 cloud; a point's velocity is its displacement since the previous step over dt
@@ -127,6 +134,8 @@ TEMPERATURE_GRID = tuple(float(x) for x in np.logspace(-4, 1, 64))
 MIN_ESS = 4.0
 #: Bound of the unclipped plan (``MPPIConfig.update_unclipped``), in units of ``control_bound``.
 NOMINAL_SLACK = 2.0
+#: Times at which a rollout's held last state is scored (``MPPIConfig.hold_time``).
+HOLD_SAMPLES = 4
 #: Scales of the MPPI action among the safety check's candidates (before "no motion").
 CHECK_SCALES = (0.5, 0.25)
 
@@ -190,6 +199,9 @@ class MPPIConfig:
       convex_link: 0 = off; > 0 = also score the robot's clearance to convex
         polytopes of the cloud's clusters (static and moving points apart) at
         this single-linkage distance, m (``ncedf.convex``; module docstring).
+      hold_time: 0 = off; > 0 = also score each rollout's last state held this
+        much longer against the moving polytopes, s (module docstring; needs
+        ``convex_link``).
     """
 
     samples: int = 800
@@ -232,6 +244,7 @@ class MPPIConfig:
     goal_reach: bool = False
     update_unclipped: bool = False
     convex_link: float = 0.0
+    hold_time: float = 0.0
 
     def __post_init__(self):
         def num(name):
@@ -253,7 +266,7 @@ class MPPIConfig:
             if num(name) <= 0:
                 raise ValueError(f"MPPIConfig.{name} must be > 0, got {getattr(self, name)}")
         for name in ("w_goal", "w_coll", "w_state", "w_goal_terminal", "w_coll_terminal", "w_perturbation", "safety_margin",
-                     "check_margin", "fill_edge", "convex_link"):
+                     "check_margin", "fill_edge", "convex_link", "hold_time"):
             if num(name) < 0:
                 raise ValueError(f"MPPIConfig.{name} must be >= 0, got {getattr(self, name)}")
         if not 0 < num("alpha_u") <= 1:
@@ -274,6 +287,8 @@ class MPPIConfig:
             raise ValueError(f"MPPIConfig.stall_progress must be > 0, got {self.stall_progress}")
         if self.stall_steps and self.target_ess is None:
             raise ValueError("MPPIConfig.stall_steps needs target_ess (the stall escape changes the ESS target)")
+        if self.hold_time and not self.convex_link:
+            raise ValueError("MPPIConfig.hold_time needs convex_link (the held state is scored against the polytopes)")
         if self.selection not in SELECTIONS:
             raise ValueError(f"MPPIConfig.selection must be one of {', '.join(SELECTIONS)}, got {self.selection!r}")
         if self.sampling not in SAMPLING:
@@ -437,6 +452,22 @@ def step_clearance(config: MPPIConfig, shape, arc: jnp.ndarray, actions: jnp.nda
     return clearance
 
 
+def held_clearance(spec: RobotSpec, polytopes, arcs: jnp.ndarray, frames: jnp.ndarray, start, hold_time: float):
+    """(B...,) the robot's clearance to the moving polytopes while it holds still: the least
+    of ``ncedf.convex.robot_clearance`` at ``HOLD_SAMPLES`` times evenly spaced over
+    ``(start, start + hold_time]``, m (+inf without moving polytopes; a static one's
+    clearance is that at ``start`` throughout, so it is left out).
+
+    Args:
+      arcs: (B..., M, 3) m.  frames: (B..., M + 1, 4, 4) their forward kinematics.
+      start: s (scalar).  hold_time: s.
+    """
+    times = start + hold_time * jnp.arange(1, HOLD_SAMPLES + 1, dtype=arcs.dtype) / HOLD_SAMPLES  # (K,)
+    moving = polytopes._replace(present=polytopes.present & jnp.any(polytopes.velocity != 0, axis=-1))
+    clearance = robot_clearance(arcs[..., None, :, :], frames[..., None, :, :, :], spec, moving, times)
+    return jnp.min(clearance, axis=-1)
+
+
 def cloud_velocity(points, mask, previous, previous_mask, dt: float) -> jnp.ndarray:
     """(P, 3) m/s: each row's displacement since the previous cloud over dt; zero where
     either cloud has padding."""
@@ -536,7 +567,11 @@ def mppi_step(spec: RobotSpec, config: MPPIConfig, shape, state: MPPIState, arc,
         dist = rollout_min_distances(config, shape, arcs, points, mask, frames)  # (N, H)
     if polytopes is not None:
         dist = jnp.minimum(dist, robot_clearance(arcs, frames, spec, polytopes, ahead))
-    coll = 1.0 / jnp.maximum(dist - c.safety_margin, c.epsilon)
+    scored = dist  # (N, H) the distances the collision cost sees
+    if polytopes is not None and c.hold_time > 0:
+        hold = held_clearance(spec, polytopes, arcs[:, -1], frames[:, -1], ahead[-1], c.hold_time)
+        scored = dist.at[:, -1].min(hold)
+    coll = 1.0 / jnp.maximum(scored - c.safety_margin, c.epsilon)
     viol = jnp.sum(jnp.maximum(spec.l_min - arcs, 0.0) + jnp.maximum(arcs - spec.l_max, 0.0), axis=(-2, -1))
 
     running = (jnp.arange(c.horizon) < c.horizon - 1).astype(arcs.dtype)  # x^1 .. x^{H-1}

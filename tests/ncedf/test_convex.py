@@ -13,7 +13,7 @@ import pytest
 from ncedf.convex import (COVER_SPHERES, MAX_CLUSTERS, clusters, fit_polytope, fit_polytopes, polytope_distance,
                           robot_clearance, static_rows)
 from ncedf.geometry import robot_signed_distance
-from ncedf.mppi import MPPI, MPPIConfig, init_state, mppi_step, step_clearance
+from ncedf.mppi import HOLD_SAMPLES, MPPI, MPPIConfig, held_clearance, init_state, mppi_step, step_clearance
 from ncedf.robot import RobotSpec, forward_kinematics, sample_arc_lengths
 from ncedf.shapes import make_shape, sphere_cover_radius
 
@@ -191,6 +191,31 @@ def test_a_moving_polytope_is_scored_where_it_will_be():
                                _box_sdf(x, (0.0, 0.0, 0.0), (1.0, 1.0, 1.0)), atol=1e-5)
 
 
+def test_the_held_state_sees_an_obstacle_that_will_arrive():
+    # A straight link (the z axis from 0 to 2 m) held still; a box whose near face is x = 2.5 m at t = 0
+    # approaches along -x. Closed form: the cover spheres' clearance at time t is 2.5 - v t - R.
+    spec = RobotSpec(1)
+    arc = jnp.full((1, 1, 3), spec.length)
+    frames = forward_kinematics(arc, spec)
+    radius = float(sphere_cover_radius(jnp.asarray(0.0), spec, COVER_SPHERES))
+    points = _box_surface(np.random.default_rng(5), (3.0, 0.0, 1.0), (1.0, 1.0, 3.0), 20.0)
+    start, hold = 0.5, 1.0
+    for v in (0.8, 0.0, -0.8):  # approaching, at rest, receding
+        poly = fit_polytopes(points, 1.0, velocity=np.tile([-v, 0.0, 0.0], (len(points), 1)))
+        held = float(held_clearance(spec, poly, arc, frames, start, hold)[0])
+        if v == 0:
+            assert np.isinf(held)  # a static polytope is scored at the start only
+            continue
+        times = start + hold * np.arange(1, HOLD_SAMPLES + 1) / HOLD_SAMPLES
+        assert held == pytest.approx(min(2.5 - v * times) - radius, abs=1e-5)
+        now = float(robot_clearance(arc, frames, spec, poly, start)[0])
+        assert (held < now - 0.5 * v * hold) if v > 0 else (held >= now - 1e-6)
+
+
 def test_convex_link_is_validated():
     with pytest.raises(ValueError, match="convex_link"):
         MPPIConfig(convex_link=-1.0)
+    with pytest.raises(ValueError, match="hold_time"):
+        MPPIConfig(hold_time=1.0)
+    with pytest.raises(ValueError, match="hold_time"):
+        MPPIConfig(convex_link=1.0, hold_time=-1.0)
