@@ -184,7 +184,7 @@ def polytope_distance(x: jnp.ndarray, polytopes: Polytopes, t=0.0) -> jnp.ndarra
     runs only what it has (``lax.switch``: absent, or its box and its plane slots up to
     the last valid one, rounded up to ``PLANE_BUCKETS``), since the arithmetic of the
     capacity is the cost (the cluttered scene fills 4 or 5 of the ``MAX_CLUSTERS``
-    slots, its boxes without planes, its spheres with 2-4).
+    slots, its boxes without planes, its spheres with 1-3).
     """
     p = polytopes
     t = jnp.asarray(t, x.dtype)

@@ -85,9 +85,9 @@ its points (their displacement since the previous cloud over dt; zero at the
 first step) to the state's time. :meth:`MPPI.step` fits the polytopes (numpy,
 about 2 ms for 500 points) and passes them to the step.
 With ``hold_time`` > 0 a rollout's last state is also scored as if the robot
-held it for ``hold_time`` more seconds: its clearance to the polytopes moved to
-``HOLD_SAMPLES`` times evenly spaced over ``(H dt, H dt + hold_time]``. Static
-polytopes give the same clearance as at ``H dt``; a moving one that would run
+held it for ``hold_time`` more seconds: its clearance to the moving polytopes
+moved to ``HOLD_SAMPLES`` times evenly spaced over ``(H dt, H dt + hold_time]``
+(a static one's is that at ``H dt``, already scored); a moving one that would run
 into the held state makes it costly, so the robot does not end its plan, or
 wait, in the path of an obstacle that the horizon sees only approaching, and it
 dodges behind the obstacle rather than ahead of it.
