@@ -209,11 +209,13 @@ clusters and planes, each cluster run by what it has: ``ncedf.convex``): L4
 spheres 48.3 / 47.8 (1.01); with the first form of the model (reduced over
 trailing cluster and plane axes), ``--timing 8``: L4 147 / 75 (1.97), L5 200
 / 93 (2.16), L7 93 / 32 (2.93). At 7 links (horizon 7) the model's share is
-largest. Timed alone and interleaved (the jitted step, 30 rounds, median),
-the step takes 25.3 ms without the model and 37.4 with it; 24.9 with the
-model in the safety check only, 35.5 in the rollouts only, 33.5 with the
-rollouts' 10 cover-sphere centres per link (three sines or cosines each)
-replaced by a stand-in without trigonometry. The fit on the host adds 2.3 ms.
+largest. Timed alone and interleaved (the jitted step, 30 rounds, median; a
+one-off measurement on a scratch copy of ``ncedf.mppi`` with the parts
+switched off, not a variant of this bench), the step takes 25.3 ms without
+the model and 37.4 with it; 24.9 with the model in the safety check only,
+35.5 in the rollouts only, 33.5 with the rollouts' 10 cover-sphere centres
+per link (three sines or cosines each) replaced by a stand-in without
+trigonometry. The fit on the host adds 2.3 ms.
 
 ``--timing 8`` with the surface model: L4 131.4 / 111.1 ms (1.18), L7 58.5 /
 41.2 (1.42), spheres 84.3 / 80.8 (1.04) (before it: L4 64.8 / 62.8 (1.03),
