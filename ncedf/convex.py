@@ -72,6 +72,8 @@ PLANE_TOLERANCE = 1e-3
 PLANE_BUCKETS = (0, 2, 4, MAX_PLANES)
 #: Balls per link that cover the robot body for the clearance to the polytopes.
 COVER_SPHERES = 10
+#: Robot states per pass of :func:`robot_clearance`.
+CLEARANCE_CHUNK = 1024
 
 
 class Polytopes(NamedTuple):
@@ -215,16 +217,23 @@ def polytope_distance(x: jnp.ndarray, polytopes: Polytopes, t=0.0) -> jnp.ndarra
 def robot_clearance(arcs: jnp.ndarray, frames: jnp.ndarray, spec: RobotSpec, polytopes: Polytopes,
                     t=0.0) -> jnp.ndarray:
     """(B...,) lower bound of the robot body's clearance to the polytopes, each moved by
-    ``t`` times its velocity (t: s, broadcastable to (B...,)), m.
+    ``t`` times its velocity (t: s; B... is the broadcast of the batch shapes of arcs and t), m.
+
+    The states are scored ``CLEARANCE_CHUNK`` at a time (``jax.lax.map``), so that the
+    cover centres and their distances of one pass stay in the CPU's caches.
 
     Args:
       arcs: (B..., M, 3) arc lengths, m.  frames: (B..., M + 1, 4, 4) their forward kinematics.
     """
     cover = SphereShape(spec, per_link=COVER_SPHERES)
-    prepare = cover.prepare
-    for _ in range(arcs.ndim - 2):
-        prepare = jax.vmap(prepare)
-    geom = prepare(arcs, frames)
-    t = jnp.asarray(t, arcs.dtype)[..., None, None]
-    d = polytope_distance(geom.centres, polytopes, t) - geom.radius[..., None]  # (B..., M, n)
-    return jnp.min(d, axis=(-2, -1))
+
+    def one(state):  # one configuration: (M, 3), (M + 1, 4, 4), () -> ()
+        arc, frame, time = state
+        geom = cover.prepare(arc, frame)
+        return jnp.min(polytope_distance(geom.centres, polytopes, time) - geom.radius[:, None])
+
+    t = jnp.asarray(t, arcs.dtype)
+    batch = jnp.broadcast_shapes(arcs.shape[:-2], t.shape)
+    states = tuple(jnp.broadcast_to(x, batch + x.shape[x.ndim - core:]).reshape((-1,) + x.shape[x.ndim - core:])
+                   for x, core in ((arcs, 2), (frames, 3), (t, 0)))
+    return jax.lax.map(one, states, batch_size=CLEARANCE_CHUNK).reshape(batch)

@@ -218,6 +218,30 @@ def link_transform_from_bending(ab: jnp.ndarray, length: float) -> jnp.ndarray:
     return _pack(*_link_components(ab, length))
 
 
+def backbone_points(ab: jnp.ndarray, frames: jnp.ndarray, fractions: jnp.ndarray, length: float) -> jnp.ndarray:
+    """World points on each link's backbone at the given arc-length fractions.
+
+    The point at arc length ``u L`` is the end of the link's first ``u L`` metres:
+    ``L (u^2 versc(u theta) (a, b), u sinc(u theta))`` in the link's base frame
+    (:func:`_link_components` with bending vector ``u (a, b)``). In the world it is
+    ``o + L u^2 versc R (a, b, 0) + L u sinc R e_z`` for the base frame ``(R, o)``, so
+    neither the angle ``phi`` nor a per-point rotation is needed.
+
+    Args:
+      ab: (..., M, 2) bending vectors.  frames: (..., M, 4, 4) the links' base frames.
+      fractions: (n,) in [0, 1].  length: backbone length L, m.
+    Returns:
+      (..., M, n, 3) points, m.
+    """
+    a, b = ab[..., 0:1], ab[..., 1:2]  # (..., M, 1)
+    u = jnp.asarray(fractions, ab.dtype)
+    sinc, versc, _ = even_series((a * a + b * b) * (u * u))  # (..., M, n)
+    across, along = length * u * u * versc, length * u * sinc
+    rot, origin = frames[..., :3, :3], frames[..., :3, 3]
+    bend = rot[..., 0] * a + rot[..., 1] * b  # R (a, b, 0), (..., M, 3)
+    return origin[..., None, :] + across[..., None] * bend[..., None, :] + along[..., None] * rot[..., None, :, 2]
+
+
 def arc_sagitta(theta: jnp.ndarray, length) -> jnp.ndarray:
     """Largest distance between a circular arc and its chord, m.
 

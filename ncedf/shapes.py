@@ -42,16 +42,15 @@ from ncedf.geometry import (
     robot_link_signed_distances,
     robot_surface_points,
     sample_surface_coords,
-    surface_points_bending_plane,
-    to_bending_plane,
 )
 from ncedf.robot import (
     RobotSpec,
     arc_lengths_to_config,
     arc_sagitta,
+    backbone_points,
+    bending_vector,
     forward_kinematics,
     link_transform,
-    points_from_link_frames,
     world_to_frame,
 )
 
@@ -266,16 +265,11 @@ class SphereShape(_Base):
     per_link: int = dataclasses.field(default=DEFAULT_SPHERES_PER_LINK, metadata=dict(static=True))
     name: str = dataclasses.field(default="spheres", metadata=dict(static=True))
 
-    def centres_local(self, theta, phi):
-        """Sphere centres of one link in its base frame, (n, 3)."""
-        u = (jnp.arange(self.per_link) + 0.5) / self.per_link
-        coords = jnp.stack([u, jnp.zeros_like(u), jnp.zeros_like(u)], axis=-1)
-        return to_bending_plane(surface_points_bending_plane(coords, theta, self.spec), -phi)
-
     def prepare(self, arc, frames=None):
         """Per-configuration geometry; ``frames`` = forward kinematics if already known."""
         base = self._base_geometry(arc, frames)
-        centres = points_from_link_frames(jax.vmap(self.centres_local)(base.theta, base.phi), base.frames)
+        fractions = (jnp.arange(self.per_link) + 0.5) / self.per_link
+        centres = backbone_points(bending_vector(arc, self.spec), base.frames[:-1], fractions, self.spec.length)
         radius = sphere_cover_radius(base.theta, self.spec, self.per_link)
         return base._replace(centres=centres, radius=radius)
 

@@ -20,6 +20,8 @@ from ncedf.robot import (
     InvalidStateError,
     RobotSpec,
     arc_lengths_to_config,
+    backbone_points,
+    bending_vector,
     config_to_arc_lengths,
     end_effector_pose,
     forward_kinematics,
@@ -509,6 +511,28 @@ def test_fk_matches_integrated_chain():
         np.testing.assert_allclose(frames[i + 1][:3, :3], R_acc, atol=1e-8)
     # backbone length bounds the reach
     assert np.linalg.norm(frames[-1][:3, 3]) <= 3 * spec.length
+
+
+def test_backbone_points_match_the_integrated_backbone_in_the_world():
+    """Each link's backbone point at arc length u L, integrated as a partial link (bend u theta over
+    u L) and carried into the world by the chain of frames before it; batched over two states."""
+    spec = RobotSpec(3)
+    fractions = np.array([0.0, 0.05, 0.5, 0.93, 1.0])
+    with jax.enable_x64(True):
+        arcs = np.array(sample(jax.random.key(11), spec, (2, 3)))
+        arcs[1, 0] = spec.length  # a straight first link
+        frames = np.asarray(fk(jnp.asarray(arcs), spec))
+        got = np.asarray(backbone_points(bending_vector(jnp.asarray(arcs), spec), jnp.asarray(frames[:, :-1]),
+                                         jnp.asarray(fractions), spec.length))
+    assert got.shape == (2, 3, len(fractions), 3)
+    for b in range(2):
+        theta, phi = eq1_numpy(arcs[b], spec.radius)
+        for i in range(3):
+            base = frames[b, i]
+            for k, u in enumerate(fractions):
+                local = integrate_backbone(u * theta[i], phi[i], u * spec.length, steps=400)[0] if u else np.zeros(3)
+                np.testing.assert_allclose(got[b, i, k], base[:3, :3] @ local + base[:3, 3], atol=1e-8)
+            np.testing.assert_allclose(got[b, i, -1], frames[b, i + 1][:3, 3], atol=1e-12)  # u = 1: the next frame
 
 
 def test_fk_batched_leading_dims():
