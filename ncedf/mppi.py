@@ -549,7 +549,9 @@ def mppi_step(spec: RobotSpec, config: MPPIConfig, shape, state: MPPIState, arc,
     arcs = arc[None, None] + c.dt * jnp.cumsum(u, axis=1)  # x^1 .. x^H
 
     # Per-state terms.
-    frames = forward_kinematics(arcs, spec)  # (N, H, M + 1, 4, 4)
+    # Materialised once, so every consumer reads the same frames: XLA otherwise recomputes parts of the
+    # chain inside some consumers, with a rounding that can depend on the number of CPU threads.
+    frames = jax.lax.optimization_barrier(forward_kinematics(arcs, spec))  # (N, H, M + 1, 4, 4)
     goal_d = goal_distance(frames[..., -1, :, :], goal)  # (N, H)
     observed, observed_mask = points, mask
     velocity = (cloud_velocity(points, mask, state.previous, state.previous_mask, c.dt) if c.predict_motion
