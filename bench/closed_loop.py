@@ -217,6 +217,26 @@ the model and 37.4 with it; 24.9 with the model in the safety check only,
 per link (three sines or cosines each) replaced by a stand-in without
 trigonometry. The fit on the host adds 2.3 ms.
 
+The 7-link gap was the clearance's memory traffic. Timed inside the step (a
+one-off scratch measurement, ``MPPI.step`` interleaved with ``paper``'s), the
+step took 30.2, 31.5, 38.2, 39.1 and 42.1 ms with 1, 4, 8, 10 and 20 cover
+spheres per link: a jump where one pass's arrays (800 x 7 x 7 x n floats)
+outgrow the CPU's caches. ``ncedf.convex.robot_clearance`` now scores
+``CLEARANCE_CHUNK`` (1024) states per pass, and the cover centres come from
+``ncedf.robot.backbone_points`` (no angle phi, no per-point rotation). In
+that scratch comparison: 40.9 ms before, 35.8 with the chunks alone, 31.8
+with both (paper 26.2). ``--timing 30`` afterwards, with the kinematics
+barrier of ``ncedf.mppi`` (same floats with 1 or 2 threads): L4 74.2 / 63.8
+ms (1.16), L5 84.8 / 73.5 (1.15), L7 37.3 / 25.0 (1.49; 1.48 and 1.49 in two
+more runs), spheres 47.3 / 45.9 (1.03); without the barrier L7 1.29-1.43
+over four runs.
+Chunks of 128, 512 and 2048 states gave 7-link ratios of 1.36, 1.34 and 1.29.
+The new floats drew other episodes; with the stall escape off (``--variants
+ours-stall --scenarios cluttered --links 4,5,7 --seeds 20``, before the
+kinematics barrier of ``ncedf.mppi``): L4 16 successes (median 139), 3
+stuck (seeds 2, 10, 15) and 1 collision (seed 13 at step 197, -0.040 m);
+L5 19 (26) and 1 collision (seed 13 at step 289, -0.001 m); L7 20 (12).
+
 ``--timing 8`` with the surface model: L4 131.4 / 111.1 ms (1.18), L7 58.5 /
 41.2 (1.42), spheres 84.3 / 80.8 (1.04) (before it: L4 64.8 / 62.8 (1.03),
 L5 147.8 / 136.3 (1.08), L7 47.8 / 47.9 (1.00), spheres 87.4 / 85.1 (1.03),

@@ -61,10 +61,10 @@ three that reaches the cluttered scene's goal with 4 and 5 links (the paper's
 settings stay stuck, the release stalls or collides; ``results/README.md``,
 Table IV) and among the dynamic spheres it reaches the goal about twice as fast
 as the release and collides less than half as often. Its solver time per
-step in the cluttered scene is 1.19x and 1.15x the paper controller's at the
-same rollouts and horizon with 4 and 5 links and 1.56x with 7 (horizon 7,
+step in the cluttered scene is 1.16x and 1.15x the paper controller's at the
+same rollouts and horizon with 4 and 5 links and 1.49x with 7 (horizon 7,
 where the convex clearance is a larger share) (``bench/closed_loop.py
---timing 30``: L4 76.4 / 64.0 ms, L5 85.7 / 74.3, L7 40.4 / 25.9), and 1.01x
+--timing 30``: L4 74.2 / 63.8 ms, L5 84.8 / 73.5, L7 37.3 / 25.0), and 1.03x
 among the spheres. All presets use the broad phase's default selection
 (``MPPIConfig.selection`` "mean"); at 16 observed points per m^2 it
 over-estimates some rollout distances (``bench/broad_phase.py``), which the
