@@ -26,7 +26,14 @@ their surfaces can be closed from the points alone:
   corners; a curved surface between samples, whose hull faces are chords) the
   model is smaller than the obstacle by that much. A non-convex cluster is
   filled in (its concavities closed), so the model is for worlds of convex
-  obstacles, or of obstacles spaced further apart than ``link``.
+  obstacles, or of obstacles spaced further apart than ``link``;
+* a cluster whose points lie on a sphere (:func:`fit_sphere`: all within
+  ``SPHERE_TOLERANCE`` of their least-squares sphere; the cluttered scene's
+  moving spheres) is that sphere's ball, its radius grown to hold every point,
+  instead of a polytope. It is the sphere, where the points' bounding box sticks
+  out by up to 0.73 radii at its corners and their hull's faces, chords, cut
+  under it by up to the depth of the largest cap between samples (about 0.1 m
+  for 30 points on a 0.5 m sphere). Like the polytope, it holds the points' hull.
 
 Distance to a polytope (:func:`polytope_distance`): the larger of the signed
 distance to its box (exact) and of ``n_k . x - b_k`` over its planes; at most
@@ -34,7 +41,8 @@ the Euclidean distance outside (a lower bound: safe; exact for a box), and minus
 the depth inside. The robot's clearance to the polytopes
 (:func:`robot_clearance`) uses ``COVER_SPHERES`` balls per link whose union
 contains the link body (``ncedf.shapes.sphere_cover_radius``): ``min (d(c) - R)``
-over the balls is at most the clearance of the body.
+over the balls is at most the clearance of the body. Distance to a
+sphere's ball: ``||x - c|| - R``, exact.
 
 A moving cluster's polytope translates at the mean velocity of its points
 (the caller's estimate, e.g. from successive clouds), so a rollout state ``t``
@@ -70,6 +78,8 @@ MIN_PLANE_SHARE = 0.05
 PLANE_TOLERANCE = 1e-3
 #: Plane counts a polytope's distance is compiled for (its valid planes rounded up to one of them).
 PLANE_BUCKETS = (0, 2, 4, MAX_PLANES)
+#: A cluster whose points all lie within this of their least-squares sphere is that sphere, m.
+SPHERE_TOLERANCE = 0.01
 #: Balls per link that cover the robot body for the clearance to the polytopes.
 COVER_SPHERES = 10
 #: Robot states per pass of :func:`robot_clearance`.
@@ -78,11 +88,13 @@ CLEARANCE_CHUNK = 1024
 
 class Polytopes(NamedTuple):
     """Convex polytopes: a box ``lower <= x <= upper`` cut by the half-spaces
-    ``n_k . x <= b_k`` of its valid planes (a pytree).
+    ``n_k . x <= b_k`` of its valid planes, or the ball
+    ``||x - centre|| <= radius`` (a pytree).
 
     lower, upper: (C, 3) m.  normals: (C, K, 3) outward unit normals.  offsets: (C, K) m.
     valid: (C, K) bool.  present: (C,) bool; an absent cluster is no obstacle.
     velocity: (C, 3) m/s, the polytope's translation (the mean velocity of its points).
+    centre: (C, 3) m, radius: (C,) m, ball: (C,) bool: the cluster lies on that sphere and is its ball.
     """
 
     lower: jnp.ndarray
@@ -92,6 +104,9 @@ class Polytopes(NamedTuple):
     valid: jnp.ndarray
     present: jnp.ndarray
     velocity: jnp.ndarray
+    centre: jnp.ndarray
+    radius: jnp.ndarray
+    ball: jnp.ndarray
 
 
 def static_rows(points: np.ndarray, mask: np.ndarray, previous: np.ndarray, previous_mask: np.ndarray) -> np.ndarray:
@@ -132,6 +147,28 @@ def _hull_planes(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray
     return normals[first[rank]], offsets[first[rank]], merged[rank]
 
 
+def fit_sphere(points: np.ndarray) -> tuple[np.ndarray, float] | None:
+    """The sphere that the points (P, 3) of one cluster lie on: the centre (3,) of their
+    least-squares sphere (``|p|^2 = 2 c . p + k``) and the radius that holds every point, m;
+    None unless there are at least five points, every point is within ``SPHERE_TOLERANCE``
+    of that sphere and its ball is smaller than the points' bounding box (which rules out
+    near-planar points)."""
+    points = np.asarray(points, np.float64)
+    if len(points) < 5:  # any four points lie on a sphere
+        return None
+    design = np.concatenate([2.0 * points, np.ones((len(points), 1))], axis=1)
+    solution, _, rank, _ = np.linalg.lstsq(design, np.sum(points**2, axis=1), rcond=None)
+    if rank < 4:  # all on a plane
+        return None
+    centre = solution[:3]
+    reach = np.sqrt(np.sum((points - centre) ** 2, axis=1))
+    radius = float(reach.max())
+    ball = 4.0 / 3.0 * np.pi * radius**3
+    if radius - reach.min() > SPHERE_TOLERANCE or ball >= np.prod(points.max(axis=0) - points.min(axis=0)):
+        return None
+    return centre, radius
+
+
 def fit_polytope(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The polytope of one cluster (module docstring): its bounding box lower, upper (3,) and
     hull planes normals (K, 3), offsets (K,), K <= MAX_PLANES (the box's own planes left out)."""
@@ -153,6 +190,7 @@ def fit_polytopes(points: np.ndarray, link: float, groups: np.ndarray | None = N
 
     velocity: (S, 3) m/s of the points (None = at rest); a polytope moves at the mean of its
     points'. The MAX_CLUSTERS largest clusters are kept; padded and masked to the fixed capacity.
+    A cluster on a sphere (:func:`fit_sphere`) is that sphere's ball instead.
     """
     lower = np.zeros((MAX_CLUSTERS, 3), np.float32)
     upper = np.zeros((MAX_CLUSTERS, 3), np.float32)
@@ -161,6 +199,9 @@ def fit_polytopes(points: np.ndarray, link: float, groups: np.ndarray | None = N
     valid = np.zeros((MAX_CLUSTERS, MAX_PLANES), bool)
     present = np.zeros(MAX_CLUSTERS, bool)
     moving = np.zeros((MAX_CLUSTERS, 3), np.float32)
+    centre = np.zeros((MAX_CLUSTERS, 3), np.float32)
+    radius = np.zeros(MAX_CLUSTERS, np.float32)
+    ball = np.zeros(MAX_CLUSTERS, bool)
     labels = clusters(np.asarray(points, np.float64), link, groups)
     if len(labels):
         sizes = np.bincount(labels)
@@ -169,9 +210,14 @@ def fit_polytopes(points: np.ndarray, link: float, groups: np.ndarray | None = N
             lower[c], upper[c], n, b = fit_polytope(points[members])
             normals[c, : len(b)], offsets[c, : len(b)], valid[c, : len(b)] = n, b, True
             present[c] = True
+            sphere = fit_sphere(points[members])
+            if sphere is not None:
+                centre[c], radius[c] = sphere
+                ball[c] = True
             if velocity is not None:
                 moving[c] = velocity[members].mean(axis=0)
-    return Polytopes(*(jnp.asarray(a) for a in (lower, upper, normals, offsets, valid, present, moving)))
+    return Polytopes(*(jnp.asarray(a) for a in (lower, upper, normals, offsets, valid, present, moving,
+                                                centre, radius, ball)))
 
 
 def polytope_distance(x: jnp.ndarray, polytopes: Polytopes, t=0.0) -> jnp.ndarray:
@@ -180,20 +226,28 @@ def polytope_distance(x: jnp.ndarray, polytopes: Polytopes, t=0.0) -> jnp.ndarra
     inside (minus the depth); +inf without polytopes.
 
     Per polytope: the larger of the signed distance to its box (exact) and of the
-    planes' ``n_k . x - b_k``; a lower bound because the polytope lies in each.
+    planes' ``n_k . x - b_k``; a lower bound because the polytope lies in each. Per
+    sphere: the signed distance to its ball (exact).
     Written per component and unrolled over the clusters and planes, so every operation
     is elementwise over the points and XLA fuses each cluster into one loop; a cluster
-    runs only what it has (``lax.switch``: absent, or its box and its plane slots up to
-    the last valid one, rounded up to ``PLANE_BUCKETS``), since the arithmetic of the
-    capacity is the cost (the cluttered scene fills 4 or 5 of the ``MAX_CLUSTERS``
-    slots, its boxes without planes, its spheres with 1-3).
+    runs only what it has (``lax.switch``: absent, its ball, or its box and its plane
+    slots up to the last valid one, rounded up to ``PLANE_BUCKETS``), since the
+    arithmetic of the capacity is the cost (the cluttered scene fills 4 or 5 of the
+    ``MAX_CLUSTERS`` slots: its boxes without planes, its spheres as balls).
     """
     p = polytopes
     t = jnp.asarray(t, x.dtype)
     xs = [x[..., i] for i in range(3)]
 
+    def moved(c):  # the points relative to cluster c's motion
+        return [xs[i] - t * p.velocity[c, i] for i in range(3)]
+
+    def ball(c, nearest):  # cluster c's ball
+        r = moved(c)
+        return jnp.minimum(nearest, jnp.sqrt(sum((r[i] - p.centre[c, i]) ** 2 for i in range(3))) - p.radius[c])
+
     def cluster(c, planes, nearest):  # box c cut by its first ``planes`` plane slots
-        rel = [xs[i] - t * p.velocity[c, i] for i in range(3)]
+        rel = moved(c)
         centre, half = 0.5 * (p.upper[c] + p.lower[c]), 0.5 * (p.upper[c] - p.lower[c])
         q = [jnp.abs(rel[i] - centre[i]) - half[i] for i in range(3)]
         outside = jnp.sqrt(sum(jnp.maximum(qi, 0.0) ** 2 for qi in q))
@@ -208,8 +262,8 @@ def polytope_distance(x: jnp.ndarray, polytopes: Polytopes, t=0.0) -> jnp.ndarra
     nearest = jnp.full(jnp.broadcast_shapes(xs[0].shape, t.shape), jnp.inf, x.dtype)
     for c in range(p.present.shape[0]):
         used = jnp.max(jnp.where(p.valid[c], jnp.arange(1, slots + 1), 0), initial=0)  # slots up to the last valid
-        kind = jnp.where(p.present[c], 1 + jnp.searchsorted(jnp.asarray(buckets), used), 0)
-        branches = [lambda n: n] + [functools.partial(cluster, c, b) for b in buckets]
+        kind = jnp.where(p.present[c], jnp.where(p.ball[c], 1, 2 + jnp.searchsorted(jnp.asarray(buckets), used)), 0)
+        branches = [lambda n: n, functools.partial(ball, c)] + [functools.partial(cluster, c, b) for b in buckets]
         nearest = jax.lax.switch(kind, branches, nearest)
     return nearest
 

@@ -1,4 +1,4 @@
-"""ncedf.convex against independent truths: the closed-form signed distance of a box,
+"""ncedf.convex against independent truths: the closed-form signed distance of a box and of a sphere,
 the Euclidean distance to a rotated box's surface (dense), the robot's closed-form
 signed distance over a dense grid on a box, and the controller's safety check in
 front of a box sampled only at its corners."""
@@ -10,8 +10,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from ncedf.convex import (COVER_SPHERES, MAX_CLUSTERS, clusters, fit_polytope, fit_polytopes, polytope_distance,
-                          robot_clearance, static_rows)
+from ncedf.convex import (COVER_SPHERES, MAX_CLUSTERS, clusters, fit_polytope, fit_polytopes, fit_sphere,
+                          polytope_distance, robot_clearance, static_rows)
 from ncedf.geometry import robot_signed_distance
 from ncedf.mppi import HOLD_SAMPLES, MPPI, MPPIConfig, held_clearance, init_state, mppi_step, step_clearance
 from ncedf.robot import RobotSpec, forward_kinematics, sample_arc_lengths
@@ -68,6 +68,50 @@ def test_a_rotated_box_is_closed_by_its_hull_planes():
     assert np.all(inside_points <= 1e-5)
     far = np.abs(truth) > 0.15  # away from the surface the sides agree
     assert np.all((d[far] < 0) == (truth[far] < 0))
+
+
+def _sphere_surface(rng, centre, radius, n):
+    """n uniform points on a sphere, float32 as the scenarios observe them."""
+    d = rng.normal(size=(n, 3))
+    return (np.asarray(centre) + radius * d / np.linalg.norm(d, axis=1, keepdims=True)).astype(np.float32)
+
+
+def test_a_sampled_sphere_is_closed_as_its_ball_moving_with_it():
+    # 30 points on a 0.5 m sphere (the cluttered scene's moving spheres): the model is the sphere
+    # itself, where the points' bounding box sticks out at its corners and their hull cuts under it.
+    rng = np.random.default_rng(5)
+    centre, radius, v = np.array([4.0, -1.0, 2.2]), 0.5, np.array([0.0, 1.0, -0.8])
+    points = _sphere_surface(rng, centre, radius, 30)
+    poly = fit_polytopes(points, 1.0, velocity=np.tile(v, (30, 1)))
+    assert int(np.sum(poly.present)) == 1 and bool(poly.ball[0])
+    x = rng.uniform(-3.0, 3.0, (2000, 3)).astype(np.float32) + centre.astype(np.float32)
+    t = rng.uniform(0.0, 2.0, 2000).astype(np.float32)
+    truth = np.linalg.norm(x - t[:, None] * v - centre, axis=1) - radius
+    np.testing.assert_allclose(np.asarray(polytope_distance(jnp.asarray(x), poly, jnp.asarray(t))), truth, atol=2e-5)
+    box = fit_polytopes(points, 1.0)._replace(ball=jnp.zeros(MAX_CLUSTERS, bool))  # the same points as a polytope
+    d_box = np.asarray(polytope_distance(jnp.asarray(x), box))
+    truth_now = np.linalg.norm(x - centre, axis=1) - radius
+    assert np.max(d_box - truth_now) > 0.02 and np.min(d_box - truth_now) < -0.1  # both wrong ways, by far
+
+
+def test_only_clusters_on_a_sphere_are_balls():
+    rng = np.random.default_rng(6)
+    points = _sphere_surface(rng, (1.0, -2.0, 0.5), 0.7, 12)
+    found = fit_sphere(points)
+    assert found is not None
+    np.testing.assert_allclose(found[0], (1.0, -2.0, 0.5), atol=1e-5)
+    assert found[1] == pytest.approx(0.7, abs=1e-5)
+    assert np.all(np.linalg.norm(points - found[0], axis=1) <= found[1])  # the ball holds every point
+    plane = np.concatenate([rng.uniform(-1.0, 1.0, (50, 2)), np.full((50, 1), 0.3)], axis=1).astype(np.float32)
+    rot, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    tilted = (plane @ rot.T).astype(np.float32)  # coplanar up to float32 rounding
+    noisy = _sphere_surface(rng, (0.0, 0.0, 0.0), 0.5, 30) + rng.normal(scale=0.02, size=(30, 3))
+    dome = _sphere_surface(rng, (0.0, 0.0, 0.0), 1.0, 400)
+    dome = dome[dome[:, 2] > 0.3]  # its bounding box is smaller than its sphere's ball
+    box = _box_surface(rng, (0.0, 0.0, 0.0), (1.0, 1.0, 1.0), 30.0)
+    for cluster in (box, plane, tilted, noisy, dome, points[:4]):
+        assert fit_sphere(cluster) is None
+    assert not bool(np.any(fit_polytopes(box, 1.0).ball))
 
 
 def test_clusters_split_at_the_link_distance():
