@@ -80,6 +80,8 @@ PLANE_TOLERANCE = 1e-3
 PLANE_BUCKETS = (0, 2, 4, MAX_PLANES)
 #: A cluster whose points all lie within this of their least-squares sphere is that sphere, m.
 SPHERE_TOLERANCE = 0.01
+#: Groups of points whose clusters' fit :func:`fit_polytopes` keeps (a static group repeats every step).
+FIT_CACHE = 8
 #: Balls per link that cover the robot body for the clearance to the polytopes.
 COVER_SPHERES = 10
 #: Robot states per pass of :func:`robot_clearance`.
@@ -89,7 +91,7 @@ CLEARANCE_CHUNK = 1024
 class Polytopes(NamedTuple):
     """Convex polytopes: a box ``lower <= x <= upper`` cut by the half-spaces
     ``n_k . x <= b_k`` of its valid planes, or the ball
-    ``||x - centre|| <= radius`` (a pytree).
+    ``||x - centre|| <= radius`` (a pytree; :func:`fit_polytopes` gives numpy arrays).
 
     lower, upper: (C, 3) m.  normals: (C, K, 3) outward unit normals.  offsets: (C, K) m.
     valid: (C, K) bool.  present: (C,) bool; an absent cluster is no obstacle.
@@ -183,6 +185,20 @@ def fit_polytope(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray
     return lower, upper, hull_n[keep][:MAX_PLANES], hull_b[keep][:MAX_PLANES]
 
 
+@functools.lru_cache(maxsize=FIT_CACHE)
+def _fit_group(data: bytes, link: float) -> tuple[tuple, ...]:
+    """The clusters of one group's points, given as the bytes of an (S, 3) float64 array:
+    per cluster (its members' indices, then :func:`fit_polytope`'s four arrays and
+    :func:`fit_sphere`'s result). Cached: a static group repeats from step to step."""
+    points = np.frombuffer(data, np.float64).reshape(-1, 3)
+    labels = clusters(points, link)
+    fits = []
+    for label in range(labels.max(initial=-1) + 1):
+        members = np.flatnonzero(labels == label)
+        fits.append((members, *fit_polytope(points[members]), fit_sphere(points[members])))
+    return tuple(fits)
+
+
 def fit_polytopes(points: np.ndarray, link: float, groups: np.ndarray | None = None,
                   velocity: np.ndarray | None = None) -> Polytopes:
     """Polytopes of the clusters of ``points`` (S, 3) at single-linkage distance ``link`` (m),
@@ -190,7 +206,8 @@ def fit_polytopes(points: np.ndarray, link: float, groups: np.ndarray | None = N
 
     velocity: (S, 3) m/s of the points (None = at rest); a polytope moves at the mean of its
     points'. The MAX_CLUSTERS largest clusters are kept; padded and masked to the fixed capacity.
-    A cluster on a sphere (:func:`fit_sphere`) is that sphere's ball instead.
+    A cluster on a sphere (:func:`fit_sphere`) is that sphere's ball instead. A group's fit is
+    cached by its points (the last ``FIT_CACHE`` groups), so a static group is fitted once.
     """
     lower = np.zeros((MAX_CLUSTERS, 3), np.float32)
     upper = np.zeros((MAX_CLUSTERS, 3), np.float32)
@@ -202,22 +219,23 @@ def fit_polytopes(points: np.ndarray, link: float, groups: np.ndarray | None = N
     centre = np.zeros((MAX_CLUSTERS, 3), np.float32)
     radius = np.zeros(MAX_CLUSTERS, np.float32)
     ball = np.zeros(MAX_CLUSTERS, bool)
-    labels = clusters(np.asarray(points, np.float64), link, groups)
-    if len(labels):
-        sizes = np.bincount(labels)
-        for c, label in enumerate(np.argsort(-sizes, kind="stable")[:MAX_CLUSTERS]):
-            members = labels == label
-            lower[c], upper[c], n, b = fit_polytope(points[members])
-            normals[c, : len(b)], offsets[c, : len(b)], valid[c, : len(b)] = n, b, True
-            present[c] = True
-            sphere = fit_sphere(points[members])
-            if sphere is not None:
-                centre[c], radius[c] = sphere
-                ball[c] = True
-            if velocity is not None:
-                moving[c] = velocity[members].mean(axis=0)
-    return Polytopes(*(jnp.asarray(a) for a in (lower, upper, normals, offsets, valid, present, moving,
-                                                centre, radius, ball)))
+    points = np.ascontiguousarray(points, np.float64)
+    groups = np.zeros(len(points), int) if groups is None else np.asarray(groups)
+    found = []  # (members' indices into points, fit)
+    for group in np.unique(groups):
+        index = np.flatnonzero(groups == group)
+        found += [(index[members], fit) for members, *fit in _fit_group(points[index].tobytes(), float(link))]
+    found.sort(key=lambda cluster: -len(cluster[0]))  # stable: the largest first
+    for c, (members, (box_lower, box_upper, n, b, sphere)) in enumerate(found[:MAX_CLUSTERS]):
+        lower[c], upper[c] = box_lower, box_upper
+        normals[c, : len(b)], offsets[c, : len(b)], valid[c, : len(b)] = n, b, True
+        present[c] = True
+        if sphere is not None:
+            centre[c], radius[c] = sphere
+            ball[c] = True
+        if velocity is not None:
+            moving[c] = velocity[members].mean(axis=0)
+    return Polytopes(lower, upper, normals, offsets, valid, present, moving, centre, radius, ball)
 
 
 def polytope_distance(x: jnp.ndarray, polytopes: Polytopes, t=0.0) -> jnp.ndarray:

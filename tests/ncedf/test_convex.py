@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from ncedf.convex import (COVER_SPHERES, MAX_CLUSTERS, clusters, fit_polytope, fit_polytopes, fit_sphere,
+from ncedf.convex import (COVER_SPHERES, MAX_CLUSTERS, _fit_group, clusters, fit_polytope, fit_polytopes, fit_sphere,
                           polytope_distance, robot_clearance, static_rows)
 from ncedf.geometry import robot_signed_distance
 from ncedf.mppi import HOLD_SAMPLES, MPPI, MPPIConfig, held_clearance, init_state, mppi_step, step_clearance
@@ -112,6 +112,22 @@ def test_only_clusters_on_a_sphere_are_balls():
     for cluster in (box, plane, tilted, noisy, dome, points[:4]):
         assert fit_sphere(cluster) is None
     assert not bool(np.any(fit_polytopes(box, 1.0).ball))
+
+
+def test_a_fit_from_the_cache_is_the_fit_from_scratch():
+    # The controller refits every step; the static group's clusters come from the cache.
+    rng = np.random.default_rng(7)
+    static = _box_surface(rng, (2.5, 0.0, 0.0), (1.0, 5.0, 2.0), 4.0)
+    groups = np.r_[np.zeros(30, bool), np.ones(len(static), bool)]
+    fits = []
+    for centre in ((4.0, 0.0, 2.2), (4.0, 0.0, 2.16), (4.0, 0.0, 2.12)):
+        cloud = np.concatenate([_sphere_surface(np.random.default_rng(8), centre, 0.5, 30), static])
+        fits.append(fit_polytopes(cloud, 1.0, groups))
+    _fit_group.cache_clear()
+    fresh = fit_polytopes(cloud, 1.0, groups)
+    for cached, new in zip(fits[-1], fresh):
+        np.testing.assert_array_equal(cached, new)
+    assert int(np.sum(fresh.present)) == 2 and int(np.sum(fresh.ball)) == 1
 
 
 def test_clusters_split_at_the_link_distance():
