@@ -171,11 +171,14 @@ def fit_sphere(points: np.ndarray) -> tuple[np.ndarray, float] | None:
     return centre, radius
 
 
-def fit_polytope(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def fit_polytope(points: np.ndarray, planes: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The polytope of one cluster (module docstring): its bounding box lower, upper (3,) and
-    hull planes normals (K, 3), offsets (K,), K <= MAX_PLANES (the box's own planes left out)."""
+    hull planes normals (K, 3), offsets (K,), K <= MAX_PLANES (the box's own planes left out;
+    none with ``planes`` False)."""
     points = np.asarray(points, np.float64)
     lower, upper = points.min(axis=0), points.max(axis=0)
+    if not planes:
+        return lower, upper, np.zeros((0, 3)), np.zeros(0)
     box_n = np.concatenate([np.eye(3), -np.eye(3)])
     box_b = np.concatenate([upper, -lower])
     hull_n, hull_b, areas = _hull_planes(points)
@@ -189,13 +192,15 @@ def fit_polytope(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray
 def _fit_group(data: bytes, link: float) -> tuple[tuple, ...]:
     """The clusters of one group's points, given as the bytes of an (S, 3) float64 array:
     per cluster (its members' indices, then :func:`fit_polytope`'s four arrays and
-    :func:`fit_sphere`'s result). Cached: a static group repeats from step to step."""
+    :func:`fit_sphere`'s result; a sphere's polytope without hull planes, as its ball replaces
+    it). Cached: a static group repeats from step to step."""
     points = np.frombuffer(data, np.float64).reshape(-1, 3)
     labels = clusters(points, link)
     fits = []
     for label in range(labels.max(initial=-1) + 1):
         members = np.flatnonzero(labels == label)
-        fits.append((members, *fit_polytope(points[members]), fit_sphere(points[members])))
+        sphere = fit_sphere(points[members])
+        fits.append((members, *fit_polytope(points[members], planes=sphere is None), sphere))
     return tuple(fits)
 
 
