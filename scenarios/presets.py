@@ -39,33 +39,40 @@ horizons as the release. Per scenario (``scenario_fields``):
   (``STALL_STEPS``, ``STALL_ESS``: after 30 steps without progress, weights
   sharpened to an effective sample size of 0.5% until the goal distance falls
   again; before the model its larger steps found the holes of the cloud).
+  A cluster whose points lie on a sphere (the scene's moving spheres) is
+  that sphere's ball (``ncedf.convex.fit_sphere``), not a polytope.
   Over 20 seeds per link count (``python -m scenarios.sweep --scenario
-  cluttered --links 4,5,7 --seeds 20``): 4 links 18 successes (median reach
-  step 137.5) and 2 stuck (1.4 and 1.5 m short); 5 links 20 (median 26.5);
-  7 links 20 (median 12); no collision. The 4-link rate sits near 95%: the
-  same design with other float rounding (``results/README.md``) gave 20 and
-  19 of 20, and 20 of 20 on seeds 20-39. Without the stall escape
-  (``ours-stall``, one float rounding earlier) 16 (3 stuck, 1 collision),
-  19 (1 collision) and 20; earlier still 17, 18 (1 collision: sphere 0
-  running into the robot waiting ahead of it) and 20.
+  cluttered --links 4,5,7 --seeds 20``): 20 successes with 4, 5 and 7 links
+  (median reach step 96, 27 and 12), no collision; on seeds 20-39 20 of 20
+  with 4 and 5 links (median 53.5 and 26), and over environment seeds 0-9
+  (other observed points, controller seed 0) 10 of 10 with 4, 5 and 7 links (median reach 147.5, 23 and 12), no collision. With the spheres
+  modelled as polytopes (their points' bounding box, which sticks out 0.3 m
+  at its corners, and hull planes that cut 0.1 m under the surface) the
+  4-link robot stalled near them: 18 of 20 (median 137.5, 2 stuck 1.4 and
+  1.5 m short), and 19 and 20 of 20 with other float rounding
+  (``results/README.md``). Without the stall escape (``ours-stall``, the
+  build before the ball) 16 (3 stuck, 1 collision), 19 (1 collision) and 20;
+  earlier still 17, 18 (1 collision: sphere 0 running into the robot waiting
+  ahead of it) and 20.
   Racing without the model (``update_unclipped`` alone) collided 4 / 5 / 4
   times, through the holes of the cloud (``bench/closed_loop.py``
   docstring). The model assumes convex obstacles (a cluster's concavities
   are closed), so it is not used in the other scenarios (the charging
   station and custom worlds may hold non-convex meshes). At 16 points per
   m^2 (``--option density=16``, 20 seeds): 20 / 20 / 20 successes, no
-  collision, median reach 135.5 / 26 / 12.
+  collision, median reach 103.5 / 26 / 12.
 
 ``ours`` is the default because, judged exactly, it is the only one of the
 three that reaches the cluttered scene's goal with 4 and 5 links (the paper's
 settings stay stuck, the release stalls or collides; ``results/README.md``,
 Table IV) and among the dynamic spheres it reaches the goal about twice as fast
 as the release and collides less than half as often. Its solver time per
-step in the cluttered scene is 1.16x and 1.15x the paper controller's at the
-same rollouts and horizon with 4 and 5 links and 1.49x with 7 (horizon 7,
+step in the cluttered scene is 1.14x and 1.15x the paper controller's at the
+same rollouts and horizon with 4 and 5 links and 1.19x with 7 (horizon 7,
 where the convex clearance is a larger share) (``bench/closed_loop.py
---timing 30``: L4 74.2 / 63.8 ms, L5 84.8 / 73.5, L7 37.3 / 25.0), and 1.03x
-among the spheres. All presets use the broad phase's default selection
+--timing 30``: L4 71.5 / 62.8 ms, L5 83.6 / 72.8, L7 35.5 / 29.8; within the
+episodes of 10 seeds at 7 links 1.28x, 30.7 / 24.0 ms), and 1.02x among the
+spheres. All presets use the broad phase's default selection
 (``MPPIConfig.selection`` "mean"); at 16 observed points per m^2 it
 over-estimates some rollout distances (``bench/broad_phase.py``), which the
 convex model's exact clearance covers in the cluttered scene.
@@ -190,7 +197,7 @@ CONTROLLERS = tuple(PRESETS)
 DEFAULT_CONTROLLER = "ours"
 #: Why it is the default (``--help``); measured by ``bench/closed_loop.py``.
 DEFAULT_REASON = ("ours: on the cluttered scene, judged exactly, it reaches the goal with 4, 5 and 7 links "
-                  "in 90%, 100% and 100% of 20 seeds without a collision, where the release stalls or collides "
+                  "in 20 of 20 seeds each without a collision, where the release stalls or collides "
                   "with 4 and 5 links and the paper's settings stay stuck; among the dynamic spheres it reaches "
                   "the goal about twice as fast as the release and collides less than half as often")
 
