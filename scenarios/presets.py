@@ -50,10 +50,10 @@ horizons as the release. Per scenario (``scenario_fields``):
   at its corners, and hull planes that cut 0.1 m under the surface) the
   4-link robot stalled near them: 18 of 20 (median 137.5, 2 stuck 1.4 and
   1.5 m short), and 19 and 20 of 20 with other float rounding
-  (``results/README.md``). Without the stall escape (``ours-stall``, the
-  build before the ball) 16 (3 stuck, 1 collision), 19 (1 collision) and 20;
-  earlier still 17, 18 (1 collision: sphere 0 running into the robot waiting
-  ahead of it) and 20.
+  (``results/README.md``). Without the stall escape (``ours-stall``) 18 (2
+  stuck), 20 and 20; with the polytopes for the spheres 16 (3 stuck, 1
+  collision), 19 (1 collision) and 20; earlier still 17, 18 (1 collision:
+  sphere 0 running into the robot waiting ahead of it) and 20.
   Racing without the model (``update_unclipped`` alone) collided 4 / 5 / 4
   times, through the holes of the cloud (``bench/closed_loop.py``
   docstring). The model assumes convex obstacles (a cluster's concavities
