@@ -67,11 +67,11 @@ three that reaches the cluttered scene's goal with 4 and 5 links (the paper's
 settings stay stuck, the release stalls or collides; ``results/README.md``,
 Table IV) and among the dynamic spheres it reaches the goal about twice as fast
 as the release and collides less than half as often. Its solver time per
-step in the cluttered scene is 1.14x and 1.15x the paper controller's at the
-same rollouts and horizon with 4 and 5 links and 1.19x with 7 (horizon 7,
+step in the cluttered scene is 1.17x and 1.15x the paper controller's at the
+same rollouts and horizon with 4 and 5 links and 1.20x with 7 (horizon 7,
 where the convex clearance is a larger share) (``bench/closed_loop.py
---timing 30``: L4 71.5 / 62.8 ms, L5 83.6 / 72.8, L7 35.5 / 29.8; within the
-episodes of 10 seeds at 7 links 1.28x, 30.7 / 24.0 ms), and 1.02x among the
+--timing 30``: L4 83.5 / 71.1 ms, L5 84.0 / 72.9, L7 31.2 / 26.0; within the
+episodes of 10 seeds at 7 links 1.28x, 30.7 / 24.0 ms), and 1.00x among the
 spheres. All presets use the broad phase's default selection
 (``MPPIConfig.selection`` "mean"); at 16 observed points per m^2 it
 over-estimates some rollout distances (``bench/broad_phase.py``), which the
