@@ -78,13 +78,13 @@ stays the distance to the observed points.
 Convex model (``convex_link`` > 0): the cloud's rows that did not move since
 the previous step and those that did are clustered apart and each cluster is
 closed as a convex polytope (``ncedf.convex``: exact for boxes sampled on their
-faces, holes included; a cluster on a sphere is its ball); every rollout state's and safety-check state's
-predicted distance is the smaller of the representation's and a lower bound of
-the robot body's clearance to the polytopes, each moved at the mean velocity of
-its points (their displacement since the previous cloud over dt; zero at the
-first step) to the state's time. :meth:`MPPI.step` fits the polytopes (numpy,
-about 0.5 ms per step for 500 points: a static group of points is fitted once) and
-passes them to the step.
+faces, holes included; a cluster on a sphere is its ball); every rollout
+state's and safety-check state's predicted distance is the smaller of the
+representation's and a lower bound of the robot body's clearance to the
+polytopes, each moved at the mean velocity of its points (their displacement
+since the previous cloud over dt; zero at the first step) to the state's time.
+:meth:`MPPI.step` fits the polytopes (numpy, about 0.5 ms per step for 500
+points: a static group of points is fitted once) and passes them to the step.
 With ``hold_time`` > 0 a rollout's last state is also scored as if the robot
 held it for ``hold_time`` more seconds: its clearance to the moving polytopes
 moved to ``HOLD_SAMPLES`` times evenly spaced over ``(H dt, H dt + hold_time]``

@@ -39,21 +39,22 @@ horizons as the release. Per scenario (``scenario_fields``):
   (``STALL_STEPS``, ``STALL_ESS``: after 30 steps without progress, weights
   sharpened to an effective sample size of 0.5% until the goal distance falls
   again; before the model its larger steps found the holes of the cloud).
-  A cluster whose points lie on a sphere (the scene's moving spheres) is
-  that sphere's ball (``ncedf.convex.fit_sphere``), not a polytope.
-  Over 20 seeds per link count (``python -m scenarios.sweep --scenario
-  cluttered --links 4,5,7 --seeds 20``): 20 successes with 4, 5 and 7 links
-  (median reach step 96, 27 and 12), no collision; on seeds 20-39 20 of 20
-  with 4 and 5 links (median 53.5 and 26), and over environment seeds 0-9
-  (other observed points, controller seed 0) 10 of 10 with 4, 5 and 7 links (median reach 147.5, 23 and 12), no collision. With the spheres
-  modelled as polytopes (their points' bounding box, which sticks out 0.3 m
-  at its corners, and hull planes that cut 0.1 m under the surface) the
-  4-link robot stalled near them: 18 of 20 (median 137.5, 2 stuck 1.4 and
-  1.5 m short), and 19 and 20 of 20 with other float rounding
-  (``results/README.md``). Without the stall escape (``ours-stall``) 18 (2
-  stuck), 20 and 20; with the polytopes for the spheres 16 (3 stuck, 1
-  collision), 19 (1 collision) and 20; earlier still 17, 18 (1 collision:
-  sphere 0 running into the robot waiting ahead of it) and 20.
+  A cluster whose points lie on a sphere (the scene's moving spheres) is that
+  sphere's ball (``ncedf.convex.fit_sphere``), not a polytope. Over 20 seeds
+  per link count (``python -m scenarios.sweep --scenario cluttered --links
+  4,5,7 --seeds 20``): 20 successes with 4, 5 and 7 links (median reach step
+  96, 27 and 12), no collision; on seeds 20-39 20 of 20 with 4 and 5 links
+  (median 53.5 and 26), and over environment seeds 0-9 (other observed
+  points, controller seed 0) 10 of 10 with 4, 5 and 7 links (median reach
+  147.5, 23 and 12), no collision. With the spheres modelled as polytopes
+  (their points' bounding box, which sticks out 0.3 m at its corners, and
+  hull planes that cut 0.1 m under the surface) the 4-link robot stalled near
+  them: 18 of 20 (median 137.5, 2 stuck 1.4 and 1.5 m short), and 19 and 20
+  of 20 with other float rounding (``results/README.md``). Without the stall
+  escape (``ours-stall``) 18 (2 stuck), 20 and 20; with the polytopes for the
+  spheres 16 (3 stuck, 1 collision), 19 (1 collision) and 20; earlier still
+  17, 18 (1 collision: sphere 0 running into the robot waiting ahead of it)
+  and 20.
   Racing without the model (``update_unclipped`` alone) collided 4 / 5 / 4
   times, through the holes of the cloud (``bench/closed_loop.py``
   docstring). The model assumes convex obstacles (a cluster's concavities
