@@ -306,6 +306,8 @@ VARIANTS: dict[str, tuple[str, dict]] = {
     "ours+fill": ("ours", {"fill_edge": 1.2}),
     "ours+fill+margin": ("ours", {"fill_edge": 1.2, "check_margin": 0.15}),
     "ours+smooth": ("ours", {"noise_smoothing": 0.6}),
+    "ours-smooth": ("ours", {"noise_smoothing": 0.0}),
+    "ours-sweep": ("ours", {"sweep_first": False}),
     "ours+motion": ("ours", {"predict_motion": True}),
     "ours-stall": ("ours", {"stall_steps": 0}),
     "ours+state": ("ours", {"selection": "state"}),

@@ -68,6 +68,12 @@ over the step is at least ``safety_margin + check_margin`` is executed; if none
 is, the one with the largest clearance. The fallbacks are evaluated only when
 the MPPI action fails the check. Each candidate's clearance comes from the
 broad phase (or brute force) on that candidate's own states.
+With ``sweep_first`` each rollout's first state is scored by that same
+clearance of its first control over the step (the least over the
+``check_substeps`` states; the broad phase picks the points for all samples
+at once, as for the rollouts): a sample whose step sweeps a link through an
+obstacle and out again within ``dt`` looks safe at its end state, so the
+update would follow it and the check would then refuse it.
 
 Surface model (``fill_edge`` > 0): rollouts and the safety check score the
 observed cloud together with points filled in between neighbours up to
@@ -203,6 +209,8 @@ class MPPIConfig:
       hold_time: 0 = off; > 0 = also score each rollout's last state held this
         much longer against the moving polytopes, s (module docstring; needs
         ``convex_link``).
+      sweep_first: score each rollout's first state by the clearance over its
+        step, as the safety check sees it (module docstring).
     """
 
     samples: int = 800
@@ -246,6 +254,7 @@ class MPPIConfig:
     update_unclipped: bool = False
     convex_link: float = 0.0
     hold_time: float = 0.0
+    sweep_first: bool = False
 
     def __post_init__(self):
         def num(name):
@@ -294,7 +303,8 @@ class MPPIConfig:
             raise ValueError(f"MPPIConfig.selection must be one of {', '.join(SELECTIONS)}, got {self.selection!r}")
         if self.sampling not in SAMPLING:
             raise ValueError(f"MPPIConfig.sampling must be one of {', '.join(SAMPLING)}, got {self.sampling!r}")
-        for name in ("broad_phase", "limit_action", "safety_check", "predict_motion", "goal_reach", "update_unclipped"):
+        for name in ("broad_phase", "limit_action", "safety_check", "predict_motion", "goal_reach", "update_unclipped",
+                     "sweep_first"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"MPPIConfig.{name} must be a bool, got {getattr(self, name)!r}")
         if self.shift_fill not in ("last", "zero"):
@@ -425,7 +435,7 @@ def temperature_for_ess(norm: jnp.ndarray, target) -> jnp.ndarray:
 
 
 def step_clearance(config: MPPIConfig, shape, arc: jnp.ndarray, actions: jnp.ndarray, points, mask,
-                   velocity=None, polytopes=None) -> jnp.ndarray:
+                   velocity=None, polytopes=None, shared: bool = False) -> jnp.ndarray:
     """Predicted clearance over one step for each action: min over the states
     ``arc + (s / S) u dt``, s = 1..S (``config.check_substeps``, ``config.dt``), of the
     representation's min distance to the cloud (moved by ``(s / S) dt velocity`` when
@@ -435,6 +445,9 @@ def step_clearance(config: MPPIConfig, shape, arc: jnp.ndarray, actions: jnp.nda
     Args:
       arc: (M, 3) m.  actions: (C, M, 3) m/s.  points: (P, 3) m; mask: (P,) bool.
       velocity: (P, 3) m/s or None.  polytopes: ``ncedf.convex.Polytopes`` or None.
+      shared: False = the broad phase picks points for each action apart (the
+        safety check's few candidates, which can move apart); True = for all
+        actions at once, as for the rollouts (many actions from one state).
     Returns:
       (C,) m (+inf for an empty cloud).
     """
@@ -442,10 +455,13 @@ def step_clearance(config: MPPIConfig, shape, arc: jnp.ndarray, actions: jnp.nda
     states = arc + config.dt * frac[None, :, None, None] * actions[:, None]  # (C, S, M, 3)
     if velocity is not None:
         points = points + config.dt * frac[:, None, None] * velocity  # (S, P, 3)
-    # One candidate at a time: the broad phase picks its points near the mean of the states it
-    # is given, and the candidates can move in opposite directions.
-    one = lambda s: jnp.min(rollout_min_distances(config, shape, s[None], points, mask))  # noqa: E731
-    clearance = jax.vmap(one)(states)
+    if shared:
+        clearance = jnp.min(rollout_min_distances(config, shape, states, points, mask), axis=1)
+    else:
+        # One candidate at a time: the broad phase picks its points near the mean of the states it
+        # is given, and the candidates can move in opposite directions.
+        one = lambda s: jnp.min(rollout_min_distances(config, shape, s[None], points, mask))  # noqa: E731
+        clearance = jax.vmap(one)(states)
     if polytopes is not None:
         frames = forward_kinematics(states, shape.spec)
         ahead = robot_clearance(states, frames, shape.spec, polytopes, config.dt * frac)  # (C, S)
@@ -570,6 +586,9 @@ def mppi_step(spec: RobotSpec, config: MPPIConfig, shape, state: MPPIState, arc,
         dist = rollout_min_distances(config, shape, arcs, points, mask, frames)  # (N, H)
     if polytopes is not None:
         dist = jnp.minimum(dist, robot_clearance(arcs, frames, spec, polytopes, ahead))
+    if c.sweep_first:  # x^1 scored over the states of its step, as the safety check scores an action
+        swept = step_clearance(c, shape, arc, u[:, 0], points, mask, velocity, polytopes, shared=True)
+        dist = dist.at[:, 0].min(swept)
     scored = dist  # (N, H) the distances the collision cost sees
     if polytopes is not None and c.hold_time > 0:
         hold = held_clearance(spec, polytopes, arcs[:, -1], frames[:, -1], ahead[-1], c.hold_time)

@@ -113,6 +113,9 @@ CLUTTERED_W_COLL = 0.4
 #: steps without progress, an effective sample size of this share of the rollouts.
 STALL_STEPS = 30
 STALL_ESS = 0.005
+#: ``ours``'s low-pass noise among the dynamic spheres (MPPIConfig.noise_smoothing): the rollouts keep a
+#: direction over the horizon, as the fastest motions to the goal do (each rate near its bound throughout).
+SPHERES_SMOOTHING = 0.9
 
 
 @dataclasses.dataclass(frozen=True)
@@ -179,16 +182,17 @@ PRESETS: dict[str, Preset] = {
             "ours",
             "release + release sampling (third rate minus the other two) + temperature for an effective "
             "sample size of 0.02 N + safety check of the executed action over the step; among the spheres "
-            "also the unclipped plan update and the closest-approach goal cost; in the cluttered scene the "
-            "convex model of the cloud, the unclipped plan update, collision weights 0.4 and the stall escape; "
-            "release sizes",
+            "also the unclipped plan update, the closest-approach goal cost and low-pass noise; in the "
+            "cluttered scene the convex model of the cloud, the unclipped plan update, collision weights 0.4 "
+            "and the stall escape; release sizes",
             RELEASE_FIELDS + (
                 ("sampling", "release"),
                 ("target_ess", 0.02),
                 ("safety_check", True),
             ),
             _release_sizes,
-            (("spheres", (("update_unclipped", True), ("goal_reach", True))),
+            (("spheres", (("update_unclipped", True), ("goal_reach", True),
+                          ("noise_smoothing", SPHERES_SMOOTHING), ("sweep_first", True))),
              ("cluttered", (("update_unclipped", True), ("convex_link", CONVEX_LINK), ("w_coll", CLUTTERED_W_COLL),
                             ("w_coll_terminal", CLUTTERED_W_COLL), ("stall_steps", STALL_STEPS), ("stall_ess", STALL_ESS)))),
         ),

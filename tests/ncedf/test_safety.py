@@ -76,6 +76,21 @@ def test_safety_check_keeps_a_safe_action():
     assert int(info.action_choice) == 0
 
 
+def test_sweep_first_scores_the_first_step_over_its_crossing():
+    wall = _wall()
+    _, _, plain = _run(WALL_CONFIG, wall)
+    _, _, swept = _run(dataclasses.replace(WALL_CONFIG, sweep_first=True), wall)
+    # Every sample is the crossing (covariance 1e-10): its end state is clear, its step is not.
+    truth = min(float(jnp.min(robot_signed_distance(jnp.asarray(wall), jnp.asarray(ARC + s * CROSSING), SPEC)))
+                for s in (0.25, 0.5, 0.75, 1.0))
+    assert truth < -0.1
+    assert np.all(np.asarray(plain.rollout_min_distance)[:, 0] > 0.3)
+    np.testing.assert_allclose(np.asarray(swept.rollout_min_distance)[:, 0], truth, atol=1e-4)
+    np.testing.assert_array_equal(swept.rollout_min_distance[:, 1:], plain.rollout_min_distance[:, 1:])
+    # The crossing is now charged the collision cost's ceiling (1 / epsilon) at x^1.
+    assert float(swept.cost_coll) - float(plain.cost_coll) > 0.9 * WALL_CONFIG.w_coll / WALL_CONFIG.epsilon
+
+
 @pytest.mark.parametrize("broad_phase", [False, True])
 def test_step_clearance_is_the_min_over_the_substeps(broad_phase):
     shape = make_shape("exact", SPEC)
@@ -93,6 +108,9 @@ def test_step_clearance_is_the_min_over_the_substeps(broad_phase):
         truth = min(float(jnp.min(robot_signed_distance(wall, jnp.asarray(ARC) + s * action, SPEC)))
                     for s in (0.25, 0.5, 0.75, 1.0))
         assert value == pytest.approx(truth, abs=1e-5)
+    if not broad_phase:  # all actions in one call (sweep_first's form) give the same minima
+        shared = step_clearance(config, shape, jnp.asarray(ARC), actions, wall, jnp.ones(len(wall), bool), shared=True)
+        np.testing.assert_allclose(shared, got, atol=1e-6)
 
 
 def test_a_wall_moving_into_the_robot_is_seen_with_predicted_motion():
@@ -218,7 +236,7 @@ def test_goal_cost_of_the_selected_rollout(goal_reach):
 def test_new_options_are_validated():
     for field, value in [("sampling", "free"), ("goal_reach", 1), ("update_unclipped", "yes"), ("noise_smoothing", 1.0), ("target_ess", 0.0), ("target_ess", 2.0),
                          ("safety_check", 1), ("check_substeps", 0), ("check_margin", -0.1),
-                         ("predict_motion", "yes"), ("stall_steps", -1), ("stall_steps", 2.0), ("stall_ess", 0.0),
+                         ("predict_motion", "yes"), ("sweep_first", 1), ("stall_steps", -1), ("stall_steps", 2.0), ("stall_ess", 0.0),
                          ("stall_progress", 0.0)]:
         with pytest.raises(ValueError, match=field):
             MPPIConfig(**{field: value, "target_ess": 0.02} if field != "target_ess" else {field: value})
@@ -286,14 +304,18 @@ def test_ours_per_scenario_fields():
     spheres = mppi_config("ours", "spheres", 4, n_points=8, margin_extra=0.7)
     cluttered = mppi_config("ours", "cluttered", 4, n_points=8)
     assert spheres.update_unclipped and spheres.goal_reach and spheres.convex_link == 0
+    assert 0 < spheres.noise_smoothing < 1 and cluttered.noise_smoothing == 0
+    assert spheres.sweep_first and not cluttered.sweep_first
     assert cluttered.update_unclipped and not cluttered.goal_reach and cluttered.convex_link > 0
     assert cluttered.w_coll == cluttered.w_coll_terminal < spheres.w_coll
     assert cluttered.stall_steps > 0 and spheres.stall_steps == 0 and cluttered.hold_time == 0
     for scenario in ("charging", "custom"):
         other = mppi_config("ours", scenario, 4, n_points=8, margin_extra=0.7)
         assert not other.update_unclipped and not other.goal_reach and other.convex_link == 0
+        assert other.noise_smoothing == 0 and not other.sweep_first
         assert dataclasses.replace(other, update_unclipped=True, goal_reach=True, samples=spheres.samples,
-                                   horizon=spheres.horizon) == spheres
+                                   horizon=spheres.horizon, noise_smoothing=spheres.noise_smoothing,
+                                   sweep_first=True) == spheres
 
 
 @pytest.mark.parametrize("broad_phase", [True, False])
