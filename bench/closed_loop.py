@@ -265,6 +265,51 @@ cluttered --links 4,5,7 --seeds 20``): without it L4 18 successes (median
 60) and 2 stuck, L5 20 (27), L7 20 (12), no collision; so it still frees
 the 4-link robot in 2 of 20 seeds.
 
+Among the dynamic spheres, two more changes (``ours-smooth``, ``ours-sweep``
+turn them off). Where ``ours`` collided in the fixed-goal environment 188
+(a sphere running into the first link at step 10), it slowed down in the
+last 1.5 m to the goal (0.3 m per step against the oracle's 0.75), its
+links' rates changing direction from step to step, while the oracle's
+motion holds every rate near its bound throughout. Low-pass noise
+(``noise_smoothing``) gives rollouts that keep a direction. Then random-goal
+environment 99 collided: at step 4 the plan's first step swept a link
+through a sphere's edge and out again (exact clearance -0.010 m halfway,
++0.18 m at its end state, the only state the rollouts scored), the safety
+check refused it and every fallback but "no motion", and the robot stood
+still for three steps while the sphere ran into it. ``sweep_first`` scores
+each rollout's first state by the check's clearance over its step.
+``--variants ours:noise_smoothing=B --scenarios spheres --envs 200 --goals
+fixed,random`` (``--env0 200`` for environments 200-399, held out while
+choosing beta), success / collision / stuck and median reach step:
+
+  variant                 fixed 0-199    random 0-199   fixed 200-399  random 200-399
+  ours before both        195 / 5, 11    196 / 4, 13    194 / 6, 11    191 / 7 / 2, 12
+  beta 0.75               195 / 5, 10    195 / 5, 12
+  beta 0.9                196 / 4, 10    195 / 4 / 1, 12  195 / 5, 10  192 / 7 / 1, 12
+  beta 0.95               196 / 4, 10    195 / 4 / 1, 12
+  beta 0.9 + sweep_first  195 / 5, 10    196 / 3 / 1, 12  195 / 5, 10  194 / 5 / 1, 12
+
+(the "before" rows of 0-199 are the recorded Table III episodes, those of
+200-399 the same sweep extended, ``python -m scenarios.sweep --scenario
+spheres --envs 400``). The last row is ``ours``: over the 800 episodes 18
+collisions instead of 22. The oracle (``bench/sphere_oracle.py --envs 200
+--env0 200 --runs FOLDER``) finds no collision-free motion in 8 of the 400
+fixed-goal environments (45, 53, 64, 93, 226, 294, 327, 399) and in 4 of the
+400 random-goal ones (53, 274, 353, 376); ``ours`` collides in all of them,
+and besides in fixed 188 and 340 (both a race against a sphere running into
+the first link: the oracle reaches the goal at step 8 with 0.08 and 0.04 m
+to spare, ``ours`` is 0.4-0.6 m short at step 9) and random 75, 158 (the
+oracle's motion passes at 0.005 m), 245 and 340. The swept first step
+scores 4 more states per rollout, with the broad phase's selection shared
+by all samples as for the rollouts (``step_clearance(shared=True)``; per
+sample, as for the check's few candidates, the same episodes at 1.8x the
+solver time): ``--timing 30 --scenarios spheres`` 65.1 / 51.1 ms, 1.27x
+the paper controller, and 60.7 / 46.3 ms, 1.31x, in a second run (1.00x
+without it). Also tried, not kept: a goal
+cost blind within 0.15 m of the goal (``ncedf.mppi`` scratch option), so
+the robot enters the success radius at full speed: fixed 188 reached, no
+other episode of the 800 changed.
+
 ``--timing 8`` with the surface model: L4 131.4 / 111.1 ms (1.18), L7 58.5 /
 41.2 (1.42), spheres 84.3 / 80.8 (1.04) (before it: L4 64.8 / 62.8 (1.03),
 L5 147.8 / 136.3 (1.08), L7 47.8 / 47.9 (1.00), spheres 87.4 / 85.1 (1.03),
