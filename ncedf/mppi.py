@@ -73,7 +73,9 @@ clearance of its first control over the step (the least over the
 ``check_substeps`` states; the broad phase picks the points for all samples
 at once, as for the rollouts): a sample whose step sweeps a link through an
 obstacle and out again within ``dt`` looks safe at its end state, so the
-update would follow it and the check would then refuse it.
+update would follow it and the check would then refuse it. That score is
+also the first column of ``MPPIInfo.rollout_min_distance`` and decides the
+check's "farthest sample".
 
 Surface model (``fill_edge`` > 0): rollouts and the safety check score the
 observed cloud together with points filled in between neighbours up to
