@@ -305,10 +305,10 @@ by all samples as for the rollouts (``step_clearance(shared=True)``; per
 sample, as for the check's few candidates, the same episodes at 1.8x the
 solver time): ``--timing 30 --scenarios spheres`` 65.1 / 51.1 ms, 1.27x
 the paper controller, and 60.7 / 46.3 ms, 1.31x, in a second run (1.00x
-without it). Also tried, not kept: a goal
-cost blind within 0.15 m of the goal (``ncedf.mppi`` scratch option), so
-the robot enters the success radius at full speed: fixed 188 reached, no
-other episode of the 800 changed.
+without it). Also tried, not kept: a goal cost blind within 0.15 m of the
+goal (``ncedf.mppi`` scratch option), so the robot enters the success
+radius at full speed: fixed 188 reached, no other episode of the 800
+changed.
 
 ``--timing 8`` with the surface model: L4 131.4 / 111.1 ms (1.18), L7 58.5 /
 41.2 (1.42), spheres 84.3 / 80.8 (1.04) (before it: L4 64.8 / 62.8 (1.03),
