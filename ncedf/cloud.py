@@ -51,6 +51,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ncedf.precision import MATMUL
+
 #: Angular sectors around a point in which its neighbours are chosen.
 SECTORS = 6
 #: Nearest points whose principal axes give a point's tangent plane.
@@ -77,7 +79,7 @@ def tangent_axes(points: jnp.ndarray, sq: jnp.ndarray):
     k = min(NORMAL_NEIGHBOURS, points.shape[0] - 1)
     neg, nbr = jax.lax.top_k(-sq, k)
     local = jnp.where(jnp.isfinite(neg)[..., None], points[nbr] - points[:, None], 0.0)  # (P, k, 3)
-    _, vectors = jnp.linalg.eigh(jnp.einsum("pki,pkj->pij", local, local))  # ascending eigenvalues
+    _, vectors = jnp.linalg.eigh(jnp.einsum("pki,pkj->pij", local, local, precision=MATMUL))  # ascending eigenvalues
     return vectors[..., 2], vectors[..., 1]
 
 
@@ -97,7 +99,8 @@ def fill_weights(points: jnp.ndarray, mask: jnp.ndarray, max_edge: float):
     real = mask[:, None] & mask[None, :] & ~jnp.eye(n, dtype=bool)
     sq = jnp.where(real, jnp.sum(diff * diff, axis=-1), jnp.inf)
     e1, e2 = tangent_axes(points, sq)
-    angle = jnp.arctan2(jnp.einsum("ijc,ic->ij", diff, e2), jnp.einsum("ijc,ic->ij", diff, e1))
+    angle = jnp.arctan2(jnp.einsum("ijc,ic->ij", diff, e2, precision=MATMUL),
+                        jnp.einsum("ijc,ic->ij", diff, e1, precision=MATMUL))
     sector = jnp.floor((angle + jnp.pi) * (SECTORS / (2.0 * jnp.pi))).astype(jnp.int32) % SECTORS
     near = sq <= max_edge * max_edge
     in_sector = near[..., None] & (sector[..., None] == jnp.arange(SECTORS))  # (P, P, S)
@@ -137,7 +140,7 @@ def fill_weights(points: jnp.ndarray, mask: jnp.ndarray, max_edge: float):
 
 def interpolate(values: jnp.ndarray, parents: jnp.ndarray, weights: jnp.ndarray) -> jnp.ndarray:
     """(F, C): ``sum_i weights[f, i] values[parents[f, i]]`` for per-point values (P, C)."""
-    return jnp.einsum("fi,fic->fc", weights, values[parents])
+    return jnp.einsum("fi,fic->fc", weights, values[parents], precision=MATMUL)
 
 
 def fill_surface(points: jnp.ndarray, mask: jnp.ndarray, max_edge: float):

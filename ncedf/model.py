@@ -34,6 +34,7 @@ import jax.numpy as jnp
 
 from ncedf.data import BOX_MAX, BOX_MIN
 from ncedf.geometry import to_bending_plane
+from ncedf.precision import MATMUL
 from ncedf.robot import (
     RobotSpec,
     arc_lengths_to_config,
@@ -102,8 +103,8 @@ class MLP(nn.Module):
     def __call__(self, x: jnp.ndarray) -> jnp.ndarray:
         init = nn.initializers.he_uniform()
         for _ in range(self.layers - 1):
-            x = nn.softplus(nn.Dense(self.width, kernel_init=init)(x))
-        return nn.Dense(1, kernel_init=init)(x)[..., 0]
+            x = nn.softplus(nn.Dense(self.width, kernel_init=init, precision=MATMUL)(x))
+        return nn.Dense(1, kernel_init=init, precision=MATMUL)(x)[..., 0]
 
 
 def encode(points: jnp.ndarray, theta, phi, encoding: str) -> jnp.ndarray:

@@ -131,6 +131,7 @@ import numpy as np
 from ncedf.broad_phase import SELECTIONS, rollout_min_distances_broad, rollout_min_distances_brute
 from ncedf.cloud import fill_weights, interpolate
 from ncedf.convex import fit_polytopes, robot_clearance, static_rows
+from ncedf.precision import MATMUL
 from ncedf.robot import RobotSpec, forward_kinematics, validate_state
 from ncedf.shapes import Shape
 
@@ -405,7 +406,8 @@ def sample_noise(config: MPPIConfig, key, dims: tuple[int, ...], dtype) -> jnp.n
     rate of each link carries no noise (it is derived)."""
     eps = math.sqrt(config.covariance) * jax.random.normal(key, (config.samples,) + dims, dtype)
     if config.noise_smoothing > 0:
-        eps = jnp.einsum("ts,nsmc->ntmc", smoothing_matrix(dims[0], config.noise_smoothing), eps)
+        eps = jnp.einsum("ts,nsmc->ntmc", smoothing_matrix(dims[0], config.noise_smoothing), eps,
+                         precision=MATMUL)
     if config.noise_clip is not None:
         eps = jnp.clip(eps, -config.noise_clip, config.noise_clip)
     if config.sampling == "release":
@@ -626,11 +628,11 @@ def mppi_step(spec: RobotSpec, config: MPPIConfig, shape, state: MPPIState, arc,
     w = w / jnp.sum(w)
     ess = 1.0 / jnp.sum(w * w)
     if c.update_unclipped:
-        raw = (1.0 - c.alpha_u) * nominal + c.alpha_u * jnp.einsum("n,nhmc->hmc", w, perturbed)
+        raw = (1.0 - c.alpha_u) * nominal + c.alpha_u * jnp.einsum("n,nhmc->hmc", w, perturbed, precision=MATMUL)
         raw = jnp.clip(raw, -NOMINAL_SLACK * c.control_bound, NOMINAL_SLACK * c.control_bound)
         updated = bounded_controls(c, raw)
     else:
-        raw = updated = (1.0 - c.alpha_u) * nominal + c.alpha_u * jnp.einsum("n,nhmc->hmc", w, u)
+        raw = updated = (1.0 - c.alpha_u) * nominal + c.alpha_u * jnp.einsum("n,nhmc->hmc", w, u, precision=MATMUL)
 
     best = jnp.argmin(total)
     action = updated[0]

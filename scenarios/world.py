@@ -107,6 +107,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ncedf.geometry import link_surface_points, robot_signed_distance
+from ncedf.precision import MATMUL
 from ncedf.robot import RobotSpec, arc_lengths_to_config, bending_vector, forward_kinematics, frame_to_world
 
 DISTANCE_ERROR_BOUND = 0.005
@@ -777,9 +778,9 @@ def triangle_distance(points: jnp.ndarray, triangle: jnp.ndarray):
     a, b, c = triangle[0], triangle[1], triangle[2]
     ab, ac = b - a, c - a
     ap, bp, cp = points - a, points - b, points - c
-    d1, d2 = ap @ ab, ap @ ac
-    d3, d4 = bp @ ab, bp @ ac
-    d5, d6 = cp @ ab, cp @ ac
+    d1, d2 = jnp.dot(ap, ab, precision=MATMUL), jnp.dot(ap, ac, precision=MATMUL)
+    d3, d4 = jnp.dot(bp, ab, precision=MATMUL), jnp.dot(bp, ac, precision=MATMUL)
+    d5, d6 = jnp.dot(cp, ab, precision=MATMUL), jnp.dot(cp, ac, precision=MATMUL)
     va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
 
     def ratio(num, den):
