@@ -26,12 +26,14 @@ Besides the named variants, ``PRESET:FIELD=VALUE[:FIELD=VALUE...]`` is a preset
 with MPPIConfig fields changed (values: numbers, true, false, none or text).
 
 ``--timing STEPS`` measures the solver time alone, with less noise from other
-work on the machine: for each group, ``ours`` and ``paper`` (at ours's sizes)
-plan from the scene's start (straight robot) STEPS times each, against the
-cloud at the step's time (the obstacles move as in an episode, so the convex
-model refits its moving clusters at every step), alternating, so both see the
-same load; printed: median and mean +- std ms per step and the ratio of the
-medians. (Until 2026-11-30 every step saw the cloud at t = 0.)
+work on the machine: for each group, every variant of ``--variants`` (``paper``
+at ours's sizes) plans from the scene's start (straight robot) STEPS times,
+against the cloud at the step's time (the obstacles move as in an episode, so
+the convex model refits its moving clusters at every step), the variants in
+turn, so all see the same load (``solver_time.solver_times``); printed: median
+and mean +- std ms per step and the ratio of each median to ``paper``'s.
+(Until 2026-11-30 every step saw the cloud at t = 0; until 2026-12-01
+``--timing`` timed ``ours`` and ``paper`` whatever ``--variants`` named.)
 
 Measured on a 2-core CPU machine shared with other work (default model, exact
 judge). The first block is the earlier ``ours`` (no surface model, check
@@ -332,13 +334,13 @@ import time
 from collections import defaultdict
 from pathlib import Path
 
-import jax
 import numpy as np
 from tqdm import tqdm
 
 from ncedf.mppi import MPPI, MPPIConfig
 from scenarios.episode import Episode, EpisodeSettings, option_positive
 from scenarios.presets import PRESETS
+from solver_time import solver_times
 
 #: name -> (preset, MPPIConfig fields changed). ``paper`` also takes ``ours``'s sizes (see ``sizes_of``).
 VARIANTS: dict[str, tuple[str, dict]] = {
@@ -424,10 +426,10 @@ def episodes(args) -> list[tuple[str, EpisodeSettings]]:
     return out
 
 
-def run_one(variant: str, settings: EpisodeSettings):
-    """One episode of ``variant`` (no recording): its EpisodeResult."""
+def make_episode(variant: str, settings: EpisodeSettings) -> Episode:
+    """The prepared episode of ``variant`` (``paper`` at ours's rollouts and horizon)."""
     preset, fields = resolve(variant)
-    if preset == "paper":  # at ours's rollouts and horizon
+    if preset == "paper":
         samples, horizon = PRESETS["ours"].sizes(settings.scenario, settings.links)
         settings = dataclasses.replace(settings, samples=samples, horizon=horizon)
     episode = Episode(dataclasses.replace(settings, controller=preset))
@@ -438,47 +440,30 @@ def run_one(variant: str, settings: EpisodeSettings):
             config = dataclasses.replace(config, safety_margin=fields["safety_margin"] + extra)
         episode.scene = dataclasses.replace(episode.scene, config=config)
         episode.mppi = MPPI(episode.scene.spec, episode.shape, config)
-    return episode.run(out=None)
+    return episode
 
 
-def solver_timing(settings: EpisodeSettings, steps: int) -> dict[str, np.ndarray]:
-    """Solver ms of ``ours`` and ``paper`` (ours's sizes) per step, alternating, from the scene's start:
-    the straight robot, the cloud at the step's time (moving obstacles move, as in an episode)."""
-    samples, horizon = PRESETS["ours"].sizes(settings.scenario, settings.links)
-    controllers = {}
-    for name in ("ours", "paper"):
-        episode = Episode(dataclasses.replace(settings, controller=name, samples=samples, horizon=horizon))
-        scene = episode.scene
-        arc = np.asarray(scene.spec.straight_state(), np.float32)
-        state = episode.mppi.init(jax.random.PRNGKey(settings.seed))
-        jax.block_until_ready(episode.mppi.step(state, arc, scene.goal, scene.observer.observe(0.0)))  # compile
-        controllers[name] = (episode.mppi, state, arc, scene)
-    times = {name: [] for name in controllers}
-    for k in range(1, steps + 1):
-        for name, (mppi, state, arc, scene) in controllers.items():
-            points = scene.observer.observe(k * scene.config.dt)
-            start = time.perf_counter()
-            _, state, _ = jax.block_until_ready(mppi.step(state, arc, scene.goal, points))
-            times[name].append((time.perf_counter() - start) * 1e3)
-            controllers[name] = (mppi, state, arc, scene)
-    return {name: np.asarray(t) for name, t in times.items()}
+def run_one(variant: str, settings: EpisodeSettings):
+    """One episode of ``variant`` (no recording): its EpisodeResult."""
+    return make_episode(variant, settings).run(out=None)
 
 
 def timing_table(args) -> str:
-    """``--timing``: one line per group (see the module docstring)."""
-    lines = [f"{'group':<16}{'N':>6}{'H':>4}{'ours median':>13}{'paper median':>14}{'ratio':>7}"
-             f"{'ours mean +- std':>20}{'paper mean +- std':>20}"]
+    """``--timing``: one line per group and variant (see the module docstring)."""
+    lines = [f"{'group':<16}{'variant':<18}{'N':>6}{'H':>4}{'median ms':>11}{'mean +- std ms':>19}{'/paper':>8}"]
     seen = set()
     for group, settings in episodes(args):
         if group in seen:
             continue
         seen.add(group)
-        t = solver_timing(settings, args.timing)
-        samples, horizon = PRESETS["ours"].sizes(settings.scenario, settings.links)
-        o, p = t["ours"], t["paper"]
-        lines.append(f"{group:<16}{samples:>6}{horizon:>4}{np.median(o):>13.1f}{np.median(p):>14.1f}"
-                     f"{np.median(o) / np.median(p):>7.2f}{o.mean():>11.1f} +- {o.std():<5.1f}"
-                     f"{p.mean():>11.1f} +- {p.std():<5.1f}")
+        prepared = {v: make_episode(v, settings) for v in args.variants}
+        t = solver_times(prepared, args.timing)
+        paper_median = np.median(t["paper"]) if "paper" in t else None
+        for v, episode in prepared.items():
+            med = np.median(t[v])
+            ratio = f"{med / paper_median:>8.2f}" if paper_median else f"{'-':>8}"
+            lines.append(f"{group:<16}{v:<18}{episode.scene.config.samples:>6}{episode.scene.config.horizon:>4}"
+                         f"{med:>11.1f}{t[v].mean():>11.1f} +- {t[v].std():<5.1f}{ratio}")
     return "\n".join(lines)
 
 
@@ -577,7 +562,7 @@ def main(argv=None) -> int:
     p.add_argument("--quick", action="store_true",
                    help="smoke run: 1 seed, 2 environments, ours and paper, 60 steps")
     p.add_argument("--timing", type=positive, metavar="STEPS",
-                   help="instead of episodes: solver ms of ours vs paper, STEPS alternating steps per group")
+                   help="instead of episodes: solver ms of each variant and its ratio to paper, STEPS steps per group")
     p.add_argument("--json", type=Path, help="also write every episode's result here")
     args = p.parse_args(argv)
     if args.quick:
