@@ -22,7 +22,7 @@ from analysis.cli import run_until_stopped  # noqa: E402
 from analysis.load import check_folder, load  # noqa: E402
 from analysis.make_tables import report_problems  # noqa: E402
 from recorder import RecorderError  # noqa: E402
-from recorder.cli import OneLineParser  # noqa: E402
+from recorder.cli import OneLineParser, exit_with  # noqa: E402
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -72,4 +72,4 @@ def _main(args) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    exit_with(main())

@@ -35,6 +35,12 @@ and mean +- std ms per step and the ratio of each median to ``paper``'s.
 (Until 2026-11-30 every step saw the cloud at t = 0; until 2026-12-01
 ``--timing`` timed ``ours`` and ``paper`` whatever ``--variants`` named.)
 
+On one NVIDIA H200 (jax 0.11.2), ``--timing 5 --variants
+ours,ours-convex,paper --scenarios cluttered --links 4``: 18.4 / 5.0 / 4.5
+ms, ours 4.1x the paper controller, 1.11x without the convex model;
+``--timing 10 --variants ours,ours-sweep,ours-check,paper --scenarios
+spheres``: 4.9 / 4.5 / 4.4 / 4.0 ms (1.22x).
+
 Measured on a 2-core CPU machine shared with other work (default model, exact
 judge). The first block is the earlier ``ours`` (no surface model, check
 margin 0), ``--seeds 3 --envs 10``, spheres with the fixed goal:
@@ -235,6 +241,10 @@ ms (1.16), L5 84.8 / 73.5 (1.15), L7 37.3 / 25.0 (1.49; 1.48 and 1.49 in two
 more runs), spheres 47.3 / 45.9 (1.03); without the barrier L7 1.29-1.43
 over four runs.
 Chunks of 128, 512 and 2048 states gave 7-link ratios of 1.36, 1.34 and 1.29.
+Again on 2026-12-01 (``--timing 20 --variants ours,paper --scenarios
+cluttered --links 4,7``, the chunk set per run): 1024 states L4 1.18 and
+1.15, L7 1.21 and 1.21; 4096 L4 1.16, L7 1.53; all 16000 in one pass L4
+1.10, L7 1.73.
 The new floats drew other episodes; with the stall escape off (``--variants
 ours-stall --scenarios cluttered --links 4,5,7 --seeds 20``, before the
 kinematics barrier of ``ncedf.mppi``): L4 16 successes (median 139), 3
@@ -328,7 +338,6 @@ import argparse
 import dataclasses
 import json
 import math
-import signal
 import sys
 import time
 from collections import defaultdict
@@ -338,6 +347,7 @@ import numpy as np
 from tqdm import tqdm
 
 from ncedf.mppi import MPPI, MPPIConfig
+from recorder.cli import EXIT_STATUS, Stopped, exit_with, stop_on_signals
 from scenarios.episode import Episode, EpisodeSettings, option_positive
 from scenarios.presets import PRESETS
 from solver_time import solver_times
@@ -571,30 +581,32 @@ def main(argv=None) -> int:
     if "paper" not in args.variants:
         print("note: without the paper variant there is no solver-time ratio", file=sys.stderr)
 
-    signal.signal(signal.SIGTERM, signal.default_int_handler)
     if args.timing:
         try:
-            print(timing_table(args))
-        except KeyboardInterrupt:
-            print("interrupted: no timing table", file=sys.stderr)
-            return 130
+            with stop_on_signals():
+                print(timing_table(args))
+        except Stopped as stop:
+            print(f"interrupted ({stop}): no timing table", file=sys.stderr)
+            return EXIT_STATUS[stop.signum]
         return 0
     rows = []
     todo = [(v, g, s) for v in args.variants for g, s in episodes(args)]
     start = time.perf_counter()
     try:
-        for variant, group, settings in tqdm(todo, desc="episodes", file=sys.stderr, dynamic_ncols=True):
-            r = run_one(variant, settings)
-            rows.append({"variant": variant, "group": group, "links": settings.links, "seed": settings.seed,
-                         "env_seed": settings.env_seed, "outcome": r.outcome, "reach_step": r.reach_step,
-                         "steps": r.steps, "min_true_distance": r.min_true_distance,
-                         "final_goal_distance": r.final_goal_distance, "ms_mean": r.solver_ms_mean,
-                         "ms_std": r.solver_ms_std})
-    except KeyboardInterrupt:
-        print(f"interrupted: {len(rows)} of {len(todo)} episodes finished; their table follows", file=sys.stderr)
+        with stop_on_signals():
+            for variant, group, settings in tqdm(todo, desc="episodes", file=sys.stderr, dynamic_ncols=True):
+                r = run_one(variant, settings)
+                rows.append({"variant": variant, "group": group, "links": settings.links, "seed": settings.seed,
+                             "env_seed": settings.env_seed, "outcome": r.outcome, "reach_step": r.reach_step,
+                             "steps": r.steps, "min_true_distance": r.min_true_distance,
+                             "final_goal_distance": r.final_goal_distance, "ms_mean": r.solver_ms_mean,
+                             "ms_std": r.solver_ms_std})
+    except Stopped as stop:
+        print(f"interrupted ({stop}): {len(rows)} of {len(todo)} episodes finished; their table follows",
+              file=sys.stderr)
         if rows:
             print(summarise(rows))
-        return 130
+        return EXIT_STATUS[stop.signum]
     print(summarise(rows))
     print(f"{len(rows)} episodes in {time.perf_counter() - start:.0f} s")
     if args.json:
@@ -603,4 +615,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    exit_with(main())

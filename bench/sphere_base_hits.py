@@ -30,7 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from ncedf.mppi import MPPIConfig  # noqa: E402
 from ncedf.robot import RobotSpec  # noqa: E402
-from recorder.cli import OneLineParser  # noqa: E402
+from recorder.cli import OneLineParser, exit_with  # noqa: E402
 from scenarios.spheres import MAX_STEPS, make_environment  # noqa: E402
 from scenarios.world import World  # noqa: E402
 
@@ -97,4 +97,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    exit_with(main())

@@ -50,7 +50,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from ncedf.mppi import MPPIConfig  # noqa: E402
 from ncedf.robot import RobotSpec  # noqa: E402
-from recorder.cli import EXIT_STATUS, OneLineParser, Stopped, stop_on_signals  # noqa: E402
+from recorder.cli import EXIT_STATUS, OneLineParser, Stopped, exit_with, stop_on_signals  # noqa: E402
 from scenarios.oracle import OracleConfig, plan_reach  # noqa: E402
 from scenarios.spheres import TOLERANCE, make_environment  # noqa: E402
 
@@ -144,4 +144,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    exit_with(main())

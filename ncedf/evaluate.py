@@ -64,20 +64,31 @@ def main(argv=None) -> int:
     except (ModelError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    cfg = model.config
-    print(f"model: {args.model or 'shipped default'}  {cfg.layers} layers x {cfg.width}, "
-          f"encoding {cfg.encoding}, output {cfg.output}")
-    val = load_dataset(val_cfg, model.spec)
-    metrics = evaluate_model(model, val)
-    print(f"validation: {args.configs} configurations x {args.points} points (seed {args.seed}), "
-          f"exact labels; near field = true distance < 0.5 m ({100 * metrics['near_fraction']:.1f}% of points)")
-    print(f"{'':12s} {'MAE':>8s} {'RMSE':>8s} {'MOE':>8s} {'over p99.9':>11s} {'max err':>8s}   (m)")
-    for name, keys in ROWS:
-        print(f"{name:12s} " + " ".join(f"{metrics[k]:{11 if 'p999' in k else 8}.4f}" for k in keys))
-    print(f"surface points: mean prediction {metrics['surface_mean']:+.4f} m, MAE {metrics['surface_mae']:.4f} m")
-    print(f"inference: {inference_ms(model):.3f} ms for one 4-link configuration against 500 points (median, this CPU)")
+    from recorder.cli import EXIT_STATUS, Stopped, stop_on_signals
+
+    try:
+        with stop_on_signals():
+            cfg = model.config
+            print(f"model: {args.model or 'shipped default'}  {cfg.layers} layers x {cfg.width}, "
+                  f"encoding {cfg.encoding}, output {cfg.output}")
+            val = load_dataset(val_cfg, model.spec)
+            metrics = evaluate_model(model, val)
+            print(f"validation: {args.configs} configurations x {args.points} points (seed {args.seed}), "
+                  f"exact labels; near field = true distance < 0.5 m ({100 * metrics['near_fraction']:.1f}% of points)")
+            print(f"{'':12s} {'MAE':>8s} {'RMSE':>8s} {'MOE':>8s} {'over p99.9':>11s} {'max err':>8s}   (m)")
+            for name, keys in ROWS:
+                print(f"{name:12s} " + " ".join(f"{metrics[k]:{11 if 'p999' in k else 8}.4f}" for k in keys))
+            print(f"surface points: mean prediction {metrics['surface_mean']:+.4f} m, "
+                  f"MAE {metrics['surface_mae']:.4f} m")
+            print(f"inference: {inference_ms(model):.3f} ms for one 4-link configuration against 500 points "
+                  f"(median, {jax.devices()[0].platform})")
+    except Stopped as stop:
+        print(f"stopped by {stop}: nothing written", file=sys.stderr)
+        return EXIT_STATUS[stop.signum]
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from recorder.cli import exit_with
+
+    exit_with(main())

@@ -315,21 +315,29 @@ def main(argv=None) -> int:
         except RecorderError as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2
-    with recording as rec:
-        start = time.perf_counter()
-        data = load_dataset(data_cfg, spec)
-        val = load_dataset(val_cfg, spec)
-        data_seconds = time.perf_counter() - start
-        domain = (data_cfg.box_min, data_cfg.box_max)
+    from recorder.cli import EXIT_STATUS, Stopped, stop_on_signals
 
-        def record(row):
+    try:
+        with stop_on_signals(), recording as rec:
+            start = time.perf_counter()
+            data = load_dataset(data_cfg, spec)
+            val = load_dataset(val_cfg, spec)
+            data_seconds = time.perf_counter() - start
+            domain = (data_cfg.box_min, data_cfg.box_max)
+
+            def record(row):
+                if rec is not None:
+                    rec.log_step(row["epoch"], float(row["epoch"]),
+                                 metrics={k: float(v) for k, v in row.items() if k != "epoch"})
+
+            model, history = train(model_cfg, cfg, data, val, spec, domain=domain, on_epoch=record)
+            train_seconds = time.perf_counter() - start - data_seconds
             if rec is not None:
-                rec.log_step(row["epoch"], float(row["epoch"]), metrics={k: float(v) for k, v in row.items() if k != "epoch"})
-
-        model, history = train(model_cfg, cfg, data, val, spec, domain=domain, on_epoch=record)
-        train_seconds = time.perf_counter() - start - data_seconds
-        if rec is not None:
-            rec.finish({"outcome": "success", "steps": len(history)})
+                rec.finish({"outcome": "success", "steps": len(history)})
+    except Stopped as stop:
+        kept = f"; the recording {args.record} is kept, marked interrupted" if args.record else ""
+        print(f"stopped by {stop}: no model written{kept}", file=sys.stderr)
+        return EXIT_STATUS[stop.signum]
     final = history[-1]
     metrics = {k: v for k, v in final.items() if k not in ("epoch", "seconds", "samples_per_second")}
     extra = {
@@ -349,4 +357,6 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from recorder.cli import exit_with
+
+    exit_with(main())

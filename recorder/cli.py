@@ -6,7 +6,10 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import os
 import signal
+import sys
+from typing import NoReturn
 
 #: Exit status per signal: 128 + its number.
 EXIT_STATUS = {signal.SIGINT: 130, signal.SIGTERM: 143}
@@ -40,3 +43,19 @@ def stop_on_signals():
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+
+
+def exit_with(status: int) -> NoReturn:
+    """Leave the process with ``status``: the last call of every command's ``__main__``.
+
+    After a stop (a status of ``EXIT_STATUS``) the interpreter's teardown is skipped
+    (``os._exit``, with the standard streams flushed): a signal that arrives while XLA
+    compiles raises ``Stopped`` out of the compilation and leaves its threads running, and
+    the teardown then crashes (a segmentation fault or an abort) instead of exiting with the
+    status. A command has closed its files by the time it returns the status.
+    """
+    if status in EXIT_STATUS.values():
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(status)
+    sys.exit(status)

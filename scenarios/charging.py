@@ -19,8 +19,6 @@ square metre on the wall, 30 per sphere.
 
 from __future__ import annotations
 
-import sys
-
 import jax
 import numpy as np
 
@@ -109,4 +107,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from recorder.cli import exit_with
+
+    exit_with(main())

@@ -17,8 +17,6 @@ density=16``). The paper's 4 leaves holes up to 0.8 m across in the cloud.
 
 from __future__ import annotations
 
-import sys
-
 from scenarios.cli import base_settings, make_parser, run_cli
 from scenarios.episode import EpisodeSettings, Scene, make_scene, option_positive, require_fixed_goal, scenario_options
 from scenarios.world import Box, MovingSphere, World
@@ -77,4 +75,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from recorder.cli import exit_with
+
+    exit_with(main())

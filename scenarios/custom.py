@@ -14,7 +14,6 @@ goal_position, offset, density, tolerance.
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 from scenarios.cli import base_settings, make_parser, run_cli
@@ -65,4 +64,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from recorder.cli import exit_with
+
+    exit_with(main())

@@ -16,8 +16,6 @@ Success: the end effector within 0.2 m of the goal in 200 steps.
 
 from __future__ import annotations
 
-import sys
-
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -98,4 +96,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from recorder.cli import exit_with
+
+    exit_with(main())

@@ -81,7 +81,7 @@ from typing import TYPE_CHECKING, Callable, Sequence
 from tqdm import tqdm
 
 from recorder import IncompleteRecordingWarning, RecorderError, RecordingInterrupted, load_run
-from recorder.cli import EXIT_STATUS, OneLineParser, Stopped, stop_on_signals
+from recorder.cli import EXIT_STATUS, OneLineParser, Stopped, exit_with, stop_on_signals
 from recorder.recorder import FORMATS, output_paths
 from scenarios import manifest
 
@@ -695,4 +695,4 @@ if __name__ == "__main__":
     # must live in `scenarios.sweep`, not in `__main__`.
     from scenarios.sweep import main as module_main
 
-    sys.exit(module_main())
+    exit_with(module_main())
