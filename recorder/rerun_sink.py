@@ -259,10 +259,10 @@ class RerunSink:
                         lambda: rr.Points3D.from_fields(radii=style.PLAN_KNOT_RADIUS, colors=style.PLAN_COLOR),
                         positions=s.plan)
         if s.state is not None:
-            for field in schema.STATE_FIELDS:
-                flat = s.state[field].ravel()
-                names = lambda: rr.SeriesLines(names=schema.state_columns(field, flat.size))  # noqa: E731
-                self._queue(s, f"{schema.STATE}/{field}", rr.Scalars, names, scalars=flat)
+            for key in schema.STATE_FIELDS:
+                flat = s.state[key].ravel()
+                names = lambda: rr.SeriesLines(names=schema.state_columns(key, flat.size))  # noqa: E731
+                self._queue(s, f"{schema.STATE}/{key}", rr.Scalars, names, scalars=flat)
         for name, value in s.metrics.items():
             self._queue(s, f"{schema.METRICS}/{name}", rr.Scalars, lambda: rr.SeriesLines(names=[name]),
                         scalars=np.array([value]))
