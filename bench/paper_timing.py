@@ -75,14 +75,14 @@ def groups(tables: list[int], shapes: list[str], links: list[int]) -> list[Group
     if 3 in tables:
         base = EpisodeSettings("spheres", 4, 0, env_seed=0, goal="fixed")
         rows = {f"{shape} release": (dataclasses.replace(base, shape=shape, controller="release"),
-                                     paper.TABLE3[shape][3] * 1e3) for shape in shapes}
-        rows["ncedf ours"] = (dataclasses.replace(base, controller="ours"), paper.TABLE3["ncedf"][3] * 1e3)
+                                     round(paper.TABLE3[shape][3] * 1e3, 6)) for shape in shapes}
+        rows["ncedf ours"] = (dataclasses.replace(base, controller="ours"), round(paper.TABLE3["ncedf"][3] * 1e3, 6))
         out.append(Group("III", "spheres L4", rows))
     if 4 in tables:
         for n in links:
             base = EpisodeSettings("cluttered", n, 0)
             out.append(Group("IV", f"cluttered L{n}", {
-                f"ncedf {c}": (dataclasses.replace(base, controller=c), paper.TABLE4[n][0] * 1e3)
+                f"ncedf {c}": (dataclasses.replace(base, controller=c), round(paper.TABLE4[n][0] * 1e3, 6))
                 for c in TABLE4_CONTROLLERS}))
     return out
 
@@ -95,10 +95,11 @@ def time_group(group: Group, steps: int) -> list[dict]:
     for label, (settings, paper_ms) in group.rows.items():
         t = times[label]
         samples, horizon = prepared[label].scene.config.samples, prepared[label].scene.config.horizon
+        median = float(np.median(t))
         out.append({"table": group.table, "scene": group.scene, "row": label, "shape": settings.shape,
-                    "controller": settings.controller, "samples": samples, "horizon": horizon, "median_ms": float(np.median(t)),
-                    "mean_ms": float(t.mean()), "std_ms": float(t.std()), "paper_ms": paper_ms,
-                    "ratio": float(np.median(t)) / paper_ms, "steps": int(t.size)})
+                    "controller": settings.controller, "samples": samples, "horizon": horizon,
+                    "median_ms": median, "mean_ms": float(t.mean()), "std_ms": float(t.std()),
+                    "paper_ms": paper_ms, "ratio": median / paper_ms, "steps": int(t.size)})
     return out
 
 
