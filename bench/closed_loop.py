@@ -350,9 +350,11 @@ from ncedf.mppi import MPPI, MPPIConfig
 from recorder.cli import EXIT_STATUS, Stopped, exit_with, stop_on_signals
 from scenarios.episode import Episode, EpisodeSettings, option_positive
 from scenarios.presets import PRESETS
+
+from arguments import parse_list, positive
 from solver_time import solver_times
 
-#: name -> (preset, MPPIConfig fields changed). ``paper`` also takes ``ours``'s sizes (see ``sizes_of``).
+#: name -> (preset, MPPIConfig fields changed). ``paper`` also takes ``ours``'s sizes (see ``make_episode``).
 VARIANTS: dict[str, tuple[str, dict]] = {
     "release": ("release", {}),
     "release+sampling": ("release", {"sampling": "release"}),
@@ -517,29 +519,6 @@ def episodes_config_check(preset: str, fields: dict) -> None:
     """Raise ValueError naming a bad field value (MPPIConfig's own validation of the preset's
     fields with ``fields`` changed)."""
     MPPIConfig(**{**dict(PRESETS[preset].fields), **fields})
-
-
-def parse_list(text: str, cast, name: str, allowed=None):
-    try:
-        values = [cast(v) for v in text.split(",") if v]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"bad {name} list {text!r}") from None
-    if not values:
-        raise argparse.ArgumentTypeError(f"empty {name} list")
-    bad = [v for v in values if allowed is not None and v not in allowed]
-    if bad:
-        raise argparse.ArgumentTypeError(f"unknown {name} {bad[0]!r}; choose from {', '.join(map(str, allowed))}")
-    return values
-
-
-def positive(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
-    return value
 
 
 def density_arg(text: str) -> float:

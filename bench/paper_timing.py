@@ -52,6 +52,8 @@ import numpy as np
 from analysis import paper
 from recorder.cli import EXIT_STATUS, OneLineParser, Stopped, exit_with, stop_on_signals
 from scenarios.episode import Episode, EpisodeSettings
+
+from arguments import parse_list, positive
 from solver_time import solver_times
 
 #: Table III's representations, in the paper's order.
@@ -119,45 +121,26 @@ def device_line() -> str:
             f"python {platform.python_version()}; paper: {paper.HARDWARE}")
 
 
-def parse_ints(text: str, allowed: tuple[int, ...], name: str) -> list[int]:
-    try:
-        values = [int(v) for v in text.split(",") if v.strip()]
-    except ValueError:
-        raise ValueError(f"{name} must be comma-separated integers, got {text!r}") from None
-    bad = [v for v in values if v not in allowed]
-    if not values or bad:
-        raise ValueError(f"{name} must be among {', '.join(map(str, allowed))}, got {text!r}")
-    return values
-
-
 def main(argv=None) -> int:
     p = OneLineParser(description=__doc__.split("\n\n")[0], epilog=__doc__,
                       formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--tables", default="3,4", help="paper tables to time: 3, 4 or 3,4 (default 3,4)")
+    p.add_argument("--tables", default="3,4", type=lambda t: parse_list(t, int, "table", (3, 4)),
+                   help="paper tables to time: 3, 4 or 3,4 (default 3,4)")
     p.add_argument("--shapes", default=",".join(TABLE3_SHAPES),
+                   type=lambda t: parse_list(t, str, "representation", TABLE3_SHAPES),
                    help=f"Table III representations (default {','.join(TABLE3_SHAPES)})")
-    p.add_argument("--links", default="4,5,7", help="Table IV link counts (default 4,5,7)")
-    p.add_argument("--steps", type=int, default=30, help="timed steps per controller (default 30)")
+    p.add_argument("--links", default="4,5,7", type=lambda t: parse_list(t, int, "links", tuple(paper.TABLE4)),
+                   help="Table IV link counts (default 4,5,7)")
+    p.add_argument("--steps", type=positive, default=30, help="timed steps per controller (default 30)")
     p.add_argument("--json", type=Path, help="also write the rows here")
     args = p.parse_args(argv)
-    try:
-        tables = parse_ints(args.tables, (3, 4), "--tables")
-        links = parse_ints(args.links, tuple(paper.TABLE4), "--links")
-        shapes = [s.strip() for s in args.shapes.split(",") if s.strip()]
-        bad = [s for s in shapes if s not in TABLE3_SHAPES]
-        if not shapes or bad:
-            raise ValueError(f"--shapes must be among {', '.join(TABLE3_SHAPES)}, got {args.shapes!r}")
-        if args.steps < 1:
-            raise ValueError(f"--steps must be >= 1, got {args.steps}")
-    except ValueError as e:
-        p.error(str(e))
 
     print(f"device: {device_line()}", flush=True)
     print(HEADER, flush=True)
     rows = []
     try:
         with stop_on_signals():
-            for group in groups(tables, shapes, links):
+            for group in groups(args.tables, args.shapes, args.links):
                 done = time_group(group, args.steps)
                 rows.extend(done)
                 print("\n".join(map(format_row, done)), flush=True)
