@@ -11,20 +11,25 @@ their surfaces can be closed from the points alone:
   row ``i`` as the same physical point at every step, so a moving obstacle's
   rows change; at the first step every row counts as moving);
 * clusters: single linkage among the static and among the moving points:
-  points closer than ``link`` are on one obstacle (:func:`clusters`).
-  Obstacles closer than ``link`` merge into one cluster and the gap between
-  them is closed (a moving obstacle never merges with a static one);
+  points closer than ``link`` are on one obstacle, and so are clusters whose
+  bounding boxes come closer than ``link`` (:func:`clusters`; a cloud sparser
+  than ``link`` splits an obstacle's faces into fragments inside its box, and
+  they merge again). Obstacles closer than ``link`` merge into one cluster and
+  the gap between them is closed (a moving obstacle never merges with a static
+  one);
 * each cluster's polytope (:func:`fit_polytope`): the axis-aligned box of its
   points, cut by the planes of its convex hull's largest faces (coplanar hull
-  triangles merged; at most ``MAX_PLANES`` besides the box's six). Every
-  plane supports the points (all lie on its inner side), so the polytope
-  contains their hull; fewer planes make it larger, never smaller. An
-  axis-aligned box sampled on its faces *is* its points' bounding box, holes
-  and edges included, and a rotated one is closed by its face planes (with at
-  least three points on each face). Where the samples stop short of a corner
-  that neither the bounding box nor a kept plane reaches (a rotated box's
-  corners; a curved surface between samples, whose hull faces are chords) the
-  model is smaller than the obstacle by that much. A non-convex cluster is
+  triangles merged; at most ``MAX_PLANES`` besides the box's six) that hold a
+  point inside the box (a plane through points on the box's faces only cuts a
+  corner off the box where the samples stop short of it). Every plane
+  supports the points (all lie on its inner side), so the polytope contains
+  their hull; fewer planes make it larger, never smaller. An axis-aligned box
+  sampled on its faces (at least one point on each) *is* its points' bounding
+  box, holes and edges included, and a rotated one is closed by its face
+  planes (with at least three points on each face). Where the samples stop
+  short of a corner that neither the bounding box nor a kept plane reaches (a
+  rotated box's corners; a curved surface between samples, whose hull faces
+  are chords) the model is smaller than the obstacle by that much. A non-convex cluster is
   filled in (its concavities closed), so the model is for worlds of convex
   obstacles, or of obstacles spaced further apart than ``link``;
 * a cluster whose points lie on a sphere (:func:`fit_sphere`: all within
@@ -116,17 +121,43 @@ def static_rows(points: np.ndarray, mask: np.ndarray, previous: np.ndarray, prev
     return mask & previous_mask & np.all(points == previous, axis=-1)
 
 
-def clusters(points: np.ndarray, link: float, groups: np.ndarray | None = None) -> np.ndarray:
-    """(P,) int cluster label of each point (P, 3): single linkage at distance ``link``, m,
-    within each group (``groups`` (P,) labels; None = one group)."""
+def _components(n: int, pairs: np.ndarray) -> np.ndarray:
+    """(n,) int label of each of n nodes: the connected components of the edges ``pairs`` (E, 2)."""
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    return connected_components(graph, directed=False)[1]
+
+
+def clusters(points: np.ndarray, link: float, groups: np.ndarray | None = None, bounds: bool = True) -> np.ndarray:
+    """(P,) int cluster label of each point (P, 3), within each group (``groups`` (P,) labels;
+    None = one group): single linkage at distance ``link``, m, then (``bounds``) clusters whose
+    bounding boxes lie within ``link`` of each other merged, until none do.
+
+    The merge keeps a sparsely sampled obstacle whole: where the gaps between its samples
+    exceed ``link`` single linkage splits its faces into fragments, and each fragment's box
+    lies inside the obstacle's, so fragments of one convex obstacle merge while those of
+    obstacles further apart than ``link`` do not.
+    """
     n = len(points)
     if n == 0:
         return np.zeros(0, int)
+    groups = np.zeros(n, int) if groups is None else np.asarray(groups)
     pairs = cKDTree(points).query_pairs(link, output_type="ndarray")
-    if groups is not None:
-        pairs = pairs[groups[pairs[:, 0]] == groups[pairs[:, 1]]]
-    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
-    return connected_components(graph, directed=False)[1]
+    labels = _components(n, pairs[groups[pairs[:, 0]] == groups[pairs[:, 1]]])
+    while bounds:
+        count = labels.max() + 1
+        lower = np.full((count, 3), np.inf)
+        upper = np.full((count, 3), -np.inf)
+        np.minimum.at(lower, labels, points)
+        np.maximum.at(upper, labels, points)
+        group = np.zeros(count, int)
+        group[labels] = groups
+        gap = np.maximum(0.0, np.maximum(lower[:, None] - upper[None], lower[None] - upper[:, None]))
+        near = (np.linalg.norm(gap, axis=-1) <= link) & (group[:, None] == group[None])
+        merged = _components(count, np.argwhere(near))
+        if merged.max() + 1 == count:
+            break
+        labels = merged[labels]
+    return labels
 
 
 def _hull_planes(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -179,23 +210,22 @@ def fit_polytope(points: np.ndarray, planes: bool = True) -> tuple[np.ndarray, n
     lower, upper = points.min(axis=0), points.max(axis=0)
     if not planes:
         return lower, upper, np.zeros((0, 3)), np.zeros(0)
-    box_n = np.concatenate([np.eye(3), -np.eye(3)])
-    box_b = np.concatenate([upper, -lower])
     hull_n, hull_b, areas = _hull_planes(points)
-    same = (np.all(np.abs(hull_n[:, None] - box_n) < PLANE_TOLERANCE, axis=-1)
-            & (np.abs(hull_b[:, None] - box_b) < PLANE_TOLERANCE))  # (Q, 6): a bounding-box plane again
-    keep = (areas >= MIN_PLANE_SHARE * areas.sum()) & ~np.any(same, axis=1)
+    on_box = np.any(np.abs(points[:, None] - np.stack([lower, upper])) < PLANE_TOLERANCE, axis=(1, 2))  # (P,)
+    on_plane = np.abs(points @ hull_n.T - hull_b) < PLANE_TOLERANCE  # (P, Q)
+    inner = np.any(on_plane & ~on_box[:, None], axis=0)  # (Q,) the plane holds a point inside the box
+    keep = (areas >= MIN_PLANE_SHARE * areas.sum()) & inner
     return lower, upper, hull_n[keep][:MAX_PLANES], hull_b[keep][:MAX_PLANES]
 
 
 @functools.lru_cache(maxsize=FIT_CACHE)
-def _fit_group(data: bytes, link: float) -> tuple[tuple, ...]:
-    """The clusters of one group's points, given as the bytes of an (S, 3) float64 array:
-    per cluster (its members' indices, then :func:`fit_polytope`'s four arrays and
+def _fit_group(data: bytes, link: float, bounds: bool) -> tuple[tuple, ...]:
+    """The clusters of one group's points, given as the bytes of an (S, 3) float64 array
+    (:func:`clusters` with ``bounds``): per cluster (its members' indices, then :func:`fit_polytope`'s four arrays and
     :func:`fit_sphere`'s result; a sphere's polytope without hull planes, as its ball replaces
     it). Cached: a static group repeats from step to step."""
     points = np.frombuffer(data, np.float64).reshape(-1, 3)
-    labels = clusters(points, link)
+    labels = clusters(points, link, bounds=bounds)
     fits = []
     for label in range(labels.max(initial=-1) + 1):
         members = np.flatnonzero(labels == label)
@@ -205,9 +235,12 @@ def _fit_group(data: bytes, link: float) -> tuple[tuple, ...]:
 
 
 def fit_polytopes(points: np.ndarray, link: float, groups: np.ndarray | None = None,
-                  velocity: np.ndarray | None = None) -> Polytopes:
+                  velocity: np.ndarray | None = None, bounds: np.ndarray | None = None) -> Polytopes:
     """Polytopes of the clusters of ``points`` (S, 3) at single-linkage distance ``link`` (m),
     within each group (``groups`` (S,) labels, e.g. static or moving; None = one group).
+
+    bounds: (S,) bool; a group whose points are all marked also merges its clusters by their
+    bounding boxes (:func:`clusters`); None = every group.
 
     velocity: (S, 3) m/s of the points (None = at rest); a polytope moves at the mean of its
     points'. The MAX_CLUSTERS largest clusters are kept; padded and masked to the fixed capacity.
@@ -226,10 +259,12 @@ def fit_polytopes(points: np.ndarray, link: float, groups: np.ndarray | None = N
     ball = np.zeros(MAX_CLUSTERS, bool)
     points = np.ascontiguousarray(points, np.float64)
     groups = np.zeros(len(points), int) if groups is None else np.asarray(groups)
+    bounds = np.ones(len(points), bool) if bounds is None else np.asarray(bounds, bool)
     found = []  # (members' indices into points, fit)
     for group in np.unique(groups):
         index = np.flatnonzero(groups == group)
-        found += [(index[members], fit) for members, *fit in _fit_group(points[index].tobytes(), float(link))]
+        fits = _fit_group(points[index].tobytes(), float(link), bool(np.all(bounds[index])))
+        found += [(index[members], fit) for members, *fit in fits]
     found.sort(key=lambda cluster: -len(cluster[0]))  # stable: the largest first
     for c, (members, (box_lower, box_upper, n, b, sphere)) in enumerate(found[:MAX_CLUSTERS]):
         lower[c], upper[c] = box_lower, box_upper

@@ -743,12 +743,15 @@ class MPPI:
 
     def polytopes(self, state: MPPIState, points, mask):
         """The convex model (``ncedf.convex``) of the padded cloud (points, mask): its rows
-        equal to the previous step's (``state.previous``) and the others clustered apart."""
+        equal to the previous step's (``state.previous``) and the others clustered apart; only
+        the static rows' clusters merge by their bounding boxes (at the first step every row
+        counts as moving, and distinct obstacles would chain together through the boxes of the
+        clusters between them)."""
         points, mask = np.asarray(points), np.asarray(mask)
         previous, previous_mask = np.asarray(state.previous), np.asarray(state.previous_mask)
         static = static_rows(points, mask, previous, previous_mask)
         velocity = np.asarray(cloud_velocity(points, mask, previous, previous_mask, self.config.dt))
-        return fit_polytopes(points[mask], self.config.convex_link, static[mask], velocity[mask])
+        return fit_polytopes(points[mask], self.config.convex_link, static[mask], velocity[mask], static[mask])
 
     def step(self, state: MPPIState, arc, goal, obstacle_points=None):
         """One MPPI iteration with validated inputs.

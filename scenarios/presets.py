@@ -116,7 +116,8 @@ POINT_BUCKET = 256
 RELEASE_LONG_ROBOT = 6
 #: Single-linkage distance of ``ours``'s convex model in the cluttered scene (MPPIConfig.convex_link), m:
 #: above the longest edge of a box's minimum spanning tree at 4 points per m^2 (0.88 m over 40 seeds),
-#: below the 1.39 m between its closest boxes.
+#: below the 1.39 m between its closest boxes. Sparser clouds split a box into fragments, which the
+#: merge of bounding boxes within this distance joins again (``ncedf.convex.clusters``).
 CONVEX_LINK = 1.0
 #: ``ours``'s collision weights (running and terminal) in the cluttered scene, where the convex model
 #: gives the true clearance to the boxes (the release's 1.1 keeps the 4-link robot too far from them).

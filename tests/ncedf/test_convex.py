@@ -140,6 +140,53 @@ def test_clusters_split_at_the_link_distance():
     assert len(np.unique(clusters(np.concatenate([a, b]), 1.0))) == 1
 
 
+def _longest_tree_edge(points):
+    """The longest edge of the points' Euclidean minimum spanning tree (dense), m: single linkage
+    at a shorter distance splits them."""
+    d = np.linalg.norm(points[:, None] - points[None], axis=-1)
+    inside, best, longest = np.zeros(len(points), bool), d[0].copy(), 0.0
+    inside[0] = True
+    for _ in range(len(points) - 1):
+        j = int(np.argmin(np.where(inside, np.inf, best)))
+        longest, inside[j] = max(longest, best[j]), True
+        best = np.minimum(best, d[j])
+    return longest
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_a_box_sampled_more_sparsely_than_the_link_stays_whole(seed):
+    # 1 point per m^2 (3 on the smallest faces): gaps between samples wider than the link, so single
+    # linkage alone cuts the box's faces into fragments with holes between them; the fragments'
+    # boxes merge, and the polytope is the box (each face holds a sample).
+    rng = np.random.default_rng(seed)
+    boxes = [((2.5, 0.0, 5.0), (1.0, 4.8, 3.0)), ((5.3, 0.0, 2.0), (2.0, 5.0, 1.0)), ((2.5, 0.0, 0.0), (1.0, 5.0, 2.0))]
+    parts = [_box_surface(rng, c, s, 1.0) for c, s in boxes]
+    assert max(_longest_tree_edge(p) for p in parts) > 1.0
+    labels = clusters(np.concatenate(parts), 1.0)
+    starts = np.cumsum([0] + [len(p) for p in parts])
+    assert [len(np.unique(labels[a:b])) for a, b in zip(starts[:-1], starts[1:])] == [1, 1, 1]
+    assert len(np.unique(labels)) == 3
+    poly = fit_polytopes(np.concatenate(parts), 1.0)
+    x = rng.uniform((-1.0, -4.0, -2.0), (8.0, 4.0, 8.0), (5000, 3))
+    truth = np.min([_box_sdf(x, c, s) for c, s in boxes], axis=0)
+    np.testing.assert_allclose(np.asarray(polytope_distance(jnp.asarray(x, jnp.float32), poly)), truth, atol=1e-5)
+
+
+def test_clusters_whose_bounds_lie_within_the_link_merge_only_within_a_group():
+    # Two sparse flat patches whose bounds are 0.9 m apart and their points over 1 m: one obstacle
+    # at a link of 1 m, unless they are in different groups (static and moving points never merge).
+    a = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    b = a + (1.9, 0.5, 0.0)
+    assert np.min(np.linalg.norm(a[:, None] - b[None], axis=-1)) > 1.0
+    points = np.concatenate([a, b])
+    assert len(np.unique(clusters(points, 1.0))) == 1
+    apart = clusters(points, 1.0, np.repeat([0, 1], 3))
+    assert len(np.unique(apart[:3])) == len(np.unique(apart[3:])) == 1 and apart[0] != apart[3]
+    assert len(np.unique(clusters(points, 1.0, bounds=False))) == 2
+    farther = clusters(np.concatenate([a, a + (2.1, 0.5, 0.0)]), 1.0)  # bounds 1.1 m apart
+    assert len(np.unique(farther[:3])) == len(np.unique(farther[3:])) == 1 and farther[0] != farther[3]
+
+
 def test_capacity_keeps_the_largest_clusters_and_no_points_no_obstacle():
     rng = np.random.default_rng(3)
     small = [rng.normal(scale=0.05, size=(5, 3)) + (3.0 * i, 0.0, 0.0) for i in range(MAX_CLUSTERS)]
@@ -279,3 +326,18 @@ def test_convex_link_is_validated():
         MPPIConfig(hold_time=1.0)
     with pytest.raises(ValueError, match="hold_time"):
         MPPIConfig(convex_link=1.0, hold_time=-1.0)
+
+
+def test_the_controller_merges_only_static_clusters_by_their_bounds():
+    # Two 3-point patches, bounds 0.9 m apart and points over 1 m apart: at the first step every
+    # row counts as moving and they stay two clusters; once they stand still they are one.
+    mppi = MPPI(SPEC, make_shape("exact", SPEC), CONFIG)
+    state = mppi.init(jax.random.PRNGKey(0))
+    a = np.array([[3.0, 0.0, 0.0], [4.0, 0.0, 0.0], [3.0, 1.0, 0.0]], np.float32)
+    cloud = np.concatenate([a, a + np.array([1.9, 0.5, 0.0], np.float32)])
+    assert int(np.sum(mppi.polytopes(state, *mppi.pad_points(cloud)).present)) == 2
+    _, state, _ = mppi.step(state, ARC, np.array([-1.24, 0.0, 1.33]), cloud)
+    poly = mppi.polytopes(state, *mppi.pad_points(cloud))
+    assert int(np.sum(poly.present)) == 1
+    np.testing.assert_allclose(np.asarray(poly.lower[0]), cloud.min(axis=0))
+    np.testing.assert_allclose(np.asarray(poly.upper[0]), cloud.max(axis=0))
