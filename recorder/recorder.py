@@ -1,4 +1,8 @@
-"""`Recorder`: takes typed step events and fans them out to the Rerun and MCAP sinks."""
+"""`Recorder`: takes typed step events and fans them out to the Rerun and MCAP sinks.
+
+Each sink's module (rerun-sdk, foxglove-sdk) is imported when a recording of its format opens,
+so code that imports the recorder but writes only .mcap, or nothing (the benchmarks), runs
+where rerun-sdk is missing."""
 
 from __future__ import annotations
 
@@ -17,8 +21,6 @@ import numpy as np
 from recorder import schema, viewer as live_viewer
 from recorder.errors import RecorderError, RecordingInterrupted
 from recorder.events import make_step
-from recorder.mcap_sink import McapSink
-from recorder.rerun_sink import RerunSink
 
 FORMATS = ("rrd", "mcap")
 #: Default MCAP mesh interval, chosen with bench/recording_cost.py to keep both sinks within 3 ms per step.
@@ -139,11 +141,15 @@ class Recorder:
         sinks, path = [], None
         try:
             for path in rerun_paths:
+                from recorder.rerun_sink import RerunSink
+
                 sinks.append(RerunSink(path, app_id=app_id, recording_id=recording_id(app_id, self.run_meta),
                                        run_name=str(self.run_meta["run_id"]), safety_margin=self.safety_margin,
                                        goal_tolerance=self.goal_tolerance, live=live))
             if "mcap" in self.paths:
                 path = self.paths["mcap"]
+                from recorder.mcap_sink import McapSink
+
                 sinks.append(McapSink(path, overwrite=overwrite, mesh_every=mcap_mesh_every,
                                       goal_tolerance=self.goal_tolerance))
         except Exception as exc:
@@ -155,7 +161,7 @@ class Recorder:
     @property
     def live(self) -> bool:
         """Whether the run is being streamed to a viewer (False after a `ViewerWarning`)."""
-        return any(isinstance(sink, RerunSink) and sink.live for sink in self._sinks)
+        return any(getattr(sink, "live", False) for sink in self._sinks)
 
     # ------------------------------------------------------------ signals
     def _install_handlers(self) -> None:
