@@ -133,9 +133,10 @@ def clusters(points: np.ndarray, link: float, groups: np.ndarray | None = None, 
     bounding boxes lie within ``link`` of each other merged, until none do.
 
     The merge keeps a sparsely sampled obstacle whole: where the gaps between its samples
-    exceed ``link`` single linkage splits its faces into fragments, and each fragment's box
-    lies inside the obstacle's, so fragments of one convex obstacle merge while those of
-    obstacles further apart than ``link`` do not.
+    exceed ``link`` single linkage splits its faces into fragments, each inside the obstacle's
+    bounding box, and fragments whose boxes lie within ``link`` merge, while obstacles whose
+    bounding boxes lie further apart than that stay apart. A gap wider than ``link`` that no
+    sample spans stays open.
     """
     n = len(points)
     if n == 0:
@@ -149,7 +150,7 @@ def clusters(points: np.ndarray, link: float, groups: np.ndarray | None = None, 
         upper = np.full((count, 3), -np.inf)
         np.minimum.at(lower, labels, points)
         np.maximum.at(upper, labels, points)
-        group = np.zeros(count, int)
+        group = np.zeros(count, groups.dtype)
         group[labels] = groups
         gap = np.maximum(0.0, np.maximum(lower[:, None] - upper[None], lower[None] - upper[:, None]))
         near = (np.linalg.norm(gap, axis=-1) <= link) & (group[:, None] == group[None])
@@ -221,9 +222,10 @@ def fit_polytope(points: np.ndarray, planes: bool = True) -> tuple[np.ndarray, n
 @functools.lru_cache(maxsize=FIT_CACHE)
 def _fit_group(data: bytes, link: float, bounds: bool) -> tuple[tuple, ...]:
     """The clusters of one group's points, given as the bytes of an (S, 3) float64 array
-    (:func:`clusters` with ``bounds``): per cluster (its members' indices, then :func:`fit_polytope`'s four arrays and
-    :func:`fit_sphere`'s result; a sphere's polytope without hull planes, as its ball replaces
-    it). Cached: a static group repeats from step to step."""
+    (:func:`clusters` with ``bounds``): per cluster (its members' indices, then
+    :func:`fit_polytope`'s four arrays and :func:`fit_sphere`'s result; a sphere's polytope
+    without hull planes, as its ball replaces it). Cached: a static group repeats from step
+    to step."""
     points = np.frombuffer(data, np.float64).reshape(-1, 3)
     labels = clusters(points, link, bounds=bounds)
     fits = []

@@ -84,9 +84,11 @@ sparsely sampled surface between its points; ``MPPIInfo.current_min_distance``
 stays the distance to the observed points.
 
 Convex model (``convex_link`` > 0): the cloud's rows that did not move since
-the previous step and those that did are clustered apart and each cluster is
-closed as a convex polytope (``ncedf.convex``: exact for boxes sampled on their
-faces, holes included; a cluster on a sphere is its ball); every rollout
+the previous step and those that did are clustered apart (static clusters whose
+bounding boxes lie within ``convex_link`` merge, so a sparsely sampled box stays
+whole) and each cluster is closed as a convex polytope (``ncedf.convex``: exact
+for boxes sampled on their faces, holes included; a cluster on a sphere is its
+ball); every rollout
 state's and safety-check state's predicted distance is the smaller of the
 representation's and a lower bound of the robot body's clearance to the
 polytopes, each moved at the mean velocity of its points (their displacement
