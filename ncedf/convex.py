@@ -237,12 +237,12 @@ def _fit_group(data: bytes, link: float, bounds: bool) -> tuple[tuple, ...]:
 
 
 def fit_polytopes(points: np.ndarray, link: float, groups: np.ndarray | None = None,
-                  velocity: np.ndarray | None = None, bounds: np.ndarray | None = None) -> Polytopes:
+                  velocity: np.ndarray | None = None, bounds: tuple | None = None) -> Polytopes:
     """Polytopes of the clusters of ``points`` (S, 3) at single-linkage distance ``link`` (m),
     within each group (``groups`` (S,) labels, e.g. static or moving; None = one group).
 
-    bounds: (S,) bool; a group whose points are all marked also merges its clusters by their
-    bounding boxes (:func:`clusters`); None = every group.
+    bounds: the group labels whose clusters also merge by their bounding boxes (:func:`clusters`);
+    None = every group's.
 
     velocity: (S, 3) m/s of the points (None = at rest); a polytope moves at the mean of its
     points'. The MAX_CLUSTERS largest clusters are kept; padded and masked to the fixed capacity.
@@ -261,11 +261,10 @@ def fit_polytopes(points: np.ndarray, link: float, groups: np.ndarray | None = N
     ball = np.zeros(MAX_CLUSTERS, bool)
     points = np.ascontiguousarray(points, np.float64)
     groups = np.zeros(len(points), int) if groups is None else np.asarray(groups)
-    bounds = np.ones(len(points), bool) if bounds is None else np.asarray(bounds, bool)
     found = []  # (members' indices into points, fit)
     for group in np.unique(groups):
         index = np.flatnonzero(groups == group)
-        fits = _fit_group(points[index].tobytes(), float(link), bool(np.all(bounds[index])))
+        fits = _fit_group(points[index].tobytes(), float(link), bounds is None or group in bounds)
         found += [(index[members], fit) for members, *fit in fits]
     found.sort(key=lambda cluster: -len(cluster[0]))  # stable: the largest first
     for c, (members, (box_lower, box_upper, n, b, sphere)) in enumerate(found[:MAX_CLUSTERS]):

@@ -753,7 +753,7 @@ class MPPI:
         previous, previous_mask = np.asarray(state.previous), np.asarray(state.previous_mask)
         static = static_rows(points, mask, previous, previous_mask)
         velocity = np.asarray(cloud_velocity(points, mask, previous, previous_mask, self.config.dt))
-        return fit_polytopes(points[mask], self.config.convex_link, static[mask], velocity[mask], static[mask])
+        return fit_polytopes(points[mask], self.config.convex_link, static[mask], velocity[mask], bounds=(True,))
 
     def step(self, state: MPPIState, arc, goal, obstacle_points=None):
         """One MPPI iteration with validated inputs.
