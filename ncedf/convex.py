@@ -287,14 +287,16 @@ def polytope_distance(x: jnp.ndarray, polytopes: Polytopes, t=0.0) -> jnp.ndarra
     Per polytope: the larger of the signed distance to its box (exact) and of the
     planes' ``n_k . x - b_k``; a lower bound because the polytope lies in each. Per
     sphere: the signed distance to its ball (exact).
-    Written per component and unrolled over the clusters and planes, so every operation
-    is elementwise over the points and XLA fuses each cluster into one loop; a cluster
-    runs only what it has (``lax.switch``: absent, its ball, or its box and its plane
-    slots up to the last valid one, rounded up to ``PLANE_BUCKETS``), since the
-    arithmetic of the capacity is the cost (the cluttered scene fills 4 or 5 of the
-    ``MAX_CLUSTERS`` slots: its boxes without planes, its spheres as balls).
+    Written per component and unrolled over the planes, so every operation is
+    elementwise over the points and XLA fuses a cluster into one loop; the clusters
+    are a ``lax.fori_loop`` (the program holds one cluster's code, not ``MAX_CLUSTERS``
+    copies: compile time), and a cluster runs only what it has (``lax.switch``: absent,
+    its ball, or its box and its plane slots up to the last valid one, rounded up to
+    ``PLANE_BUCKETS``), since the arithmetic of the capacity is the cost (the
+    cluttered scene fills 4 or 5 of the ``MAX_CLUSTERS`` slots: its boxes without
+    planes, its spheres as balls).
     """
-    p = polytopes
+    p = jax.tree.map(jnp.asarray, polytopes)  # indexed by the loop's cluster index
     t = jnp.asarray(t, x.dtype)
     xs = [x[..., i] for i in range(3)]
 
@@ -305,7 +307,7 @@ def polytope_distance(x: jnp.ndarray, polytopes: Polytopes, t=0.0) -> jnp.ndarra
         r = moved(c)
         return jnp.minimum(nearest, jnp.sqrt(sum((r[i] - p.centre[c, i]) ** 2 for i in range(3))) - p.radius[c])
 
-    def cluster(c, planes, nearest):  # box c cut by its first ``planes`` plane slots
+    def cluster(planes, c, nearest):  # box c cut by its first ``planes`` plane slots
         rel = moved(c)
         centre, half = 0.5 * (p.upper[c] + p.lower[c]), 0.5 * (p.upper[c] - p.lower[c])
         q = [jnp.abs(rel[i] - centre[i]) - half[i] for i in range(3)]
@@ -318,13 +320,11 @@ def polytope_distance(x: jnp.ndarray, polytopes: Polytopes, t=0.0) -> jnp.ndarra
 
     slots = p.valid.shape[1]
     buckets = tuple(sorted({min(b, slots) for b in PLANE_BUCKETS} | {slots}))
+    used = jnp.max(jnp.where(p.valid, jnp.arange(1, slots + 1), 0), axis=-1, initial=0)  # (C,) up to the last valid
+    kinds = jnp.where(p.present, jnp.where(p.ball, 1, 2 + jnp.searchsorted(jnp.asarray(buckets), used)), 0)
+    branches = [lambda c, n: n, ball] + [functools.partial(cluster, b) for b in buckets]
     nearest = jnp.full(jnp.broadcast_shapes(xs[0].shape, t.shape), jnp.inf, x.dtype)
-    for c in range(p.present.shape[0]):
-        used = jnp.max(jnp.where(p.valid[c], jnp.arange(1, slots + 1), 0), initial=0)  # slots up to the last valid
-        kind = jnp.where(p.present[c], jnp.where(p.ball[c], 1, 2 + jnp.searchsorted(jnp.asarray(buckets), used)), 0)
-        branches = [lambda n: n, functools.partial(ball, c)] + [functools.partial(cluster, c, b) for b in buckets]
-        nearest = jax.lax.switch(kind, branches, nearest)
-    return nearest
+    return jax.lax.fori_loop(0, p.present.shape[0], lambda c, n: jax.lax.switch(kinds[c], branches, c, n), nearest)
 
 
 def robot_clearance(arcs: jnp.ndarray, frames: jnp.ndarray, spec: RobotSpec, polytopes: Polytopes,

@@ -648,11 +648,19 @@ def mppi_step(spec: RobotSpec, config: MPPIConfig, shape, state: MPPIState, arc,
         needed = c.safety_margin + c.check_margin
         check = functools.partial(step_clearance, c, shape, arc, points=points, mask=mask, velocity=velocity,
                                   polytopes=polytopes)
-        first = check(actions=candidates[:1])
-        # The fallbacks are evaluated only when the MPPI action fails (lax.cond runs one branch).
-        clear = jax.lax.cond(first[0] >= needed,
-                             lambda: jnp.concatenate([first, jnp.full(len(candidates) - 1, -jnp.inf, first.dtype)]),
-                             lambda: jnp.concatenate([first, check(actions=candidates[1:])]))
+
+        # The candidates in order until one passes: the fallbacks are evaluated only when the MPPI
+        # action fails, and the program holds one copy of the check (compile time).
+        def unchecked(carry):
+            i, clear = carry
+            return (i < len(candidates)) & ((i == 0) | (clear[i - 1] < needed))
+
+        def check_next(carry):
+            i, clear = carry
+            return i + 1, clear.at[i].set(check(actions=candidates[i][None])[0])
+
+        clear = jnp.full(len(candidates), -jnp.inf, arc.dtype)
+        _, clear = jax.lax.while_loop(unchecked, check_next, (jnp.asarray(0), clear))
         ok = clear >= needed
         choice = jnp.where(jnp.any(ok), jnp.argmax(ok), jnp.argmax(clear))
         action, clearance = candidates[choice], clear[choice]
