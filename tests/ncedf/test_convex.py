@@ -10,10 +10,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from jitted import held_clearance, polytope_distance, robot_clearance, step_clearance
 from ncedf.convex import (COVER_SPHERES, MAX_CLUSTERS, _fit_group, clusters, fit_polytope, fit_polytopes, fit_sphere,
-                          polytope_distance, robot_clearance, static_rows)
+                          static_rows)
 from ncedf.geometry import robot_signed_distance
-from ncedf.mppi import HOLD_SAMPLES, MPPI, MPPIConfig, held_clearance, init_state, mppi_step, step_clearance
+from ncedf.mppi import HOLD_SAMPLES, MPPI, MPPIConfig, init_state, mppi_step
 from ncedf.robot import RobotSpec, forward_kinematics, sample_arc_lengths
 from ncedf.shapes import make_shape, sphere_cover_radius
 

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from ncedf.geometry import robot_signed_distance
+from jitted import rollout_min_distances, step_clearance
 from ncedf.mppi import (MIN_ESS, NOMINAL_SLACK, TEMPERATURE_GRID, MPPIConfig, cloud_velocity, init_state, mppi_step,
-                        release_controls, rollout_min_distances, sample_noise, smoothing_matrix, step_clearance,
-                        temperature_for_ess)
+                        release_controls, sample_noise, smoothing_matrix, temperature_for_ess)
 from ncedf.robot import RobotSpec, forward_kinematics
 from ncedf.shapes import make_shape
 from scenarios.presets import mppi_config

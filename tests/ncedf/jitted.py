@@ -1,0 +1,18 @@
+"""The controller's building blocks jitted, as ``ncedf.mppi.mppi_step`` runs them inside its
+program. Called eagerly, JAX compiles each of their operations apart: tens of seconds a call
+on the test machine, against a few for the whole program."""
+
+import jax
+
+from ncedf import convex, mppi
+
+#: (config, shape, arc, actions, points, mask, velocity=None, polytopes=None, shared=False)
+step_clearance = jax.jit(mppi.step_clearance, static_argnums=0, static_argnames="shared")
+#: (config, shape, arcs, points, mask, frames=None)
+rollout_min_distances = jax.jit(mppi.rollout_min_distances, static_argnums=0)
+#: (spec, polytopes, arcs, frames, start, hold_time)
+held_clearance = jax.jit(mppi.held_clearance, static_argnums=(0, 5))
+#: (arcs, frames, spec, polytopes, t=0.0)
+robot_clearance = jax.jit(convex.robot_clearance, static_argnums=2)
+#: (x, polytopes, t=0.0)
+polytope_distance = jax.jit(convex.polytope_distance)
