@@ -1,4 +1,5 @@
-"""Settings of the test session.
+"""Settings of the test session (here, not in tests/: a conftest there would put tests/ first
+on the import path, where tests/recorder would hide the recorder package).
 
 XLA builds the tests' programs at backend optimisation level 0 (no LLVM optimisation of the
 generated code): on a 2-core machine most of the suite's time is compilation, not execution
