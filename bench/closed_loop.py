@@ -227,6 +227,13 @@ the model and 37.4 with it; 24.9 with the model in the safety check only,
 per link (three sines or cosines each) replaced by a stand-in without
 trigonometry. The fit on the host adds 2.3 ms.
 
+The clusters are now a loop (``lax.fori_loop``, one copy of a cluster's code
+in the program) and the safety check's candidates a ``lax.while_loop``: the
+step lowers and compiles in about 18 s instead of 37 s (4 links), and
+``python -m scenarios.cluttered --links 7`` takes 61 s instead of 87 s, the
+same recording. ``--timing 10``, two runs each, interleaved: L4 1.13 and 1.23
+(before 1.15 and 1.16), L7 1.31 and 1.34 (before 1.23 and 1.26).
+
 The 7-link gap was the clearance's memory traffic. Timed inside the step (a
 one-off scratch measurement, ``MPPI.step`` interleaved with ``paper``'s), the
 step took 30.2, 31.5, 38.2, 39.1 and 42.1 ms with 1, 4, 8, 10 and 20 cover
