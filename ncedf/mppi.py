@@ -88,8 +88,7 @@ the previous step and those that did are clustered apart (static clusters whose
 bounding boxes lie within ``convex_link`` merge, so a sparsely sampled box stays
 whole) and each cluster is closed as a convex polytope (``ncedf.convex``: exact
 for boxes sampled on their faces, holes included; a cluster on a sphere is its
-ball); every rollout
-state's and safety-check state's predicted distance is the smaller of the
+ball); every rollout state's and safety-check state's predicted distance is the smaller of the
 representation's and a lower bound of the robot body's clearance to the
 polytopes, each moved at the mean velocity of its points (their displacement
 since the previous cloud over dt; zero at the first step) to the state's time.
@@ -648,7 +647,6 @@ def mppi_step(spec: RobotSpec, config: MPPIConfig, shape, state: MPPIState, arc,
         needed = c.safety_margin + c.check_margin
         check = functools.partial(step_clearance, c, shape, arc, points=points, mask=mask, velocity=velocity,
                                   polytopes=polytopes)
-
         # The candidates in order until one passes: the fallbacks are evaluated only when the MPPI
         # action fails, and the program holds one copy of the check (compile time).
         def unchecked(carry):

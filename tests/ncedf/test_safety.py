@@ -8,8 +8,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from ncedf.geometry import robot_signed_distance
 from jitted import rollout_min_distances, step_clearance
+from ncedf.geometry import robot_signed_distance
 from ncedf.mppi import (MIN_ESS, NOMINAL_SLACK, TEMPERATURE_GRID, MPPIConfig, cloud_velocity, init_state, mppi_step,
                         release_controls, sample_noise, smoothing_matrix, temperature_for_ess)
 from ncedf.robot import RobotSpec, forward_kinematics
