@@ -329,6 +329,31 @@ goal (``ncedf.mppi`` scratch option), so the robot enters the success
 radius at full speed: fixed 188 reached, no other episode of the 800
 changed.
 
+A refused plan as the warm start (``follow_executed``, among the spheres in
+``ours``; ``ours-follow`` turns it off).
+The random-goal environment 88, stuck before: at step 4 the plan's first
+control was saturated towards sphere 7 (the robot nearly straight, where a
+step of 0.015 m per chamber swings the tip by about 1 m), every one of the
+1000 samples around it crossed the sphere within its first step (best swept
+clearance 0.19 m to the centre, needed 0.75), so all their collision costs
+sat at the ceiling, the goal cost ranked them, the update kept the plan, and
+the check executed "no motion" for the remaining 196 steps. Warm-started
+from the executed fallback instead, the robot moves off at step 5 and reaches
+the goal at step 16. ``--variants ours --scenarios spheres --envs 200
+--goals fixed,random`` (and ``--env0 200``), success / collision / stuck:
+
+  variant        fixed 0-199   random 0-199   fixed 200-399   random 200-399
+  without it     195 / 5 / 0   196 / 3 / 1    195 / 5 / 0     194 / 5 / 1
+  with it        195 / 5 / 0   197 / 3 / 0    195 / 5 / 0     195 / 4 / 1
+
+the same fixed-goal collisions; random 88 and 245 reached (245 collided
+before); the random 200-399 stuck episode (271: the goal at z = -0.17 m, 6 m
+out, behind spheres that push the robot back and forth) is not this stall.
+In the cluttered scene (``--variants ours:follow_executed=true --scenarios
+cluttered --seeds 20``): 20 / 20 / 20 successes, no collision, median reach
+73 / 30 / 12 (``ours`` 96 / 27 / 12), smallest exact clearance 0.066 / 0.064
+/ 0.141 m; ``ours`` leaves it off there, so the Table IV episodes repeat.
+
 ``--timing 8`` with the surface model: L4 131.4 / 111.1 ms (1.18), L7 58.5 /
 41.2 (1.42), spheres 84.3 / 80.8 (1.04) (before it: L4 64.8 / 62.8 (1.03),
 L5 147.8 / 136.3 (1.08), L7 47.8 / 47.9 (1.00), spheres 87.4 / 85.1 (1.03),
@@ -383,6 +408,7 @@ VARIANTS: dict[str, tuple[str, dict]] = {
     "ours-convex": ("ours", {"convex_link": 0.0}),
     "ours-weights": ("ours", {"w_coll": 1.1, "w_coll_terminal": 1.1}),
     "ours+hold": ("ours", {"hold_time": 1.0}),
+    "ours-follow": ("ours", {"follow_executed": False}),
     "paper": ("paper", {}),
 }
 #: z for a 95% interval.

@@ -76,6 +76,15 @@ obstacle and out again within ``dt`` looks safe at its end state, so the
 update would follow it and the check would then refuse it. That score is
 also the first column of ``MPPIInfo.rollout_min_distance`` and decides the
 check's "farthest sample".
+With ``follow_executed`` the next step is warm-started from the executed
+candidate's controls (the lowest-cost or farthest sample's, the plan scaled,
+or zeros) instead of the plan the check refused. A refused plan otherwise
+stays the warm start, and when its first control is saturated towards an
+obstacle every sample around it crosses the obstacle too: their collision
+costs all sit at the ceiling ``w_coll / epsilon``, the goal cost alone ranks
+them, and the update keeps the plan, so the robot holds still for as long as
+the obstacle stays (the dynamic spheres, random-goal environment 88: 196
+steps).
 
 Surface model (``fill_edge`` > 0): rollouts and the safety check score the
 observed cloud together with points filled in between neighbours up to
@@ -215,6 +224,9 @@ class MPPIConfig:
         ``convex_link``).
       sweep_first: score each rollout's first state by the clearance over its
         step, as the safety check sees it (module docstring).
+      follow_executed: when the safety check executes a fallback, warm-start
+        the next step from the fallback's controls instead of the refused plan
+        (module docstring; needs ``safety_check``).
     """
 
     samples: int = 800
@@ -259,6 +271,7 @@ class MPPIConfig:
     convex_link: float = 0.0
     hold_time: float = 0.0
     sweep_first: bool = False
+    follow_executed: bool = False
 
     def __post_init__(self):
         def num(name):
@@ -308,9 +321,11 @@ class MPPIConfig:
         if self.sampling not in SAMPLING:
             raise ValueError(f"MPPIConfig.sampling must be one of {', '.join(SAMPLING)}, got {self.sampling!r}")
         for name in ("broad_phase", "limit_action", "safety_check", "predict_motion", "goal_reach", "update_unclipped",
-                     "sweep_first"):
+                     "sweep_first", "follow_executed"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"MPPIConfig.{name} must be a bool, got {getattr(self, name)!r}")
+        if self.follow_executed and not self.safety_check:
+            raise ValueError("MPPIConfig.follow_executed needs safety_check (it follows the check's fallback)")
         if self.shift_fill not in ("last", "zero"):
             raise ValueError(f"MPPIConfig.shift_fill must be 'last' or 'zero', got {self.shift_fill!r}")
 
@@ -662,6 +677,10 @@ def mppi_step(spec: RobotSpec, config: MPPIConfig, shape, state: MPPIState, arc,
         ok = clear >= needed
         choice = jnp.where(jnp.any(ok), jnp.argmax(ok), jnp.argmax(clear))
         action, clearance = candidates[choice], clear[choice]
+        if c.follow_executed:  # the controls each candidate starts, in the candidates' order
+            plans = jnp.stack([raw, u[best], u[safest]] + [s * updated for s in CHECK_SCALES]
+                              + [jnp.zeros_like(raw)])
+            raw = plans[choice]
     elif c.limit_action:
         action = limit_to_state_bounds(arc, action, c.dt, spec)
     fill = raw[-1:] if c.shift_fill == "last" else jnp.zeros_like(raw[-1:])

@@ -76,6 +76,34 @@ def test_safety_check_keeps_a_safe_action():
     assert int(info.action_choice) == 0
 
 
+def test_a_refused_plan_is_not_the_next_warm_start_with_follow_executed():
+    # Every sample is the crossing (covariance 1e-10), so its rollouts cannot turn the plan away:
+    # without follow_executed the refused crossing stays the plan; with it the next plan is the
+    # executed fallback's (the plan is constant over the horizon, so its next first control is
+    # the executed action).
+    wall = _wall()
+    config = dataclasses.replace(WALL_CONFIG, safety_check=True)
+    action, kept, info = _run(config, wall)
+    assert int(info.action_choice) != 0
+    np.testing.assert_allclose(np.asarray(kept.nominal), np.broadcast_to(CROSSING, (config.horizon, 1, 3)), atol=1e-4)
+    followed_action, followed, followed_info = _run(dataclasses.replace(config, follow_executed=True), wall)
+    np.testing.assert_array_equal(followed_action, action)
+    assert int(followed_info.action_choice) == int(info.action_choice)
+    np.testing.assert_allclose(np.asarray(followed.nominal),
+                               np.broadcast_to(np.asarray(action), (config.horizon, 1, 3)), atol=1e-6)
+    assert float(jnp.min(_exact_over_step(jnp.asarray(wall), jnp.asarray(ARC), followed.nominal[0]))) >= 0.0
+
+
+def test_follow_executed_changes_nothing_when_the_plan_passes_the_check():
+    far = _wall() + np.array([-5.0, 0.0, 0.0], np.float32)
+    config = dataclasses.replace(WALL_CONFIG, safety_check=True, covariance=0.05)
+    action, state, info = _run(config, far)
+    followed_action, followed, _ = _run(dataclasses.replace(config, follow_executed=True), far)
+    assert int(info.action_choice) == 0
+    np.testing.assert_array_equal(followed_action, action)
+    np.testing.assert_array_equal(followed.nominal, state.nominal)
+
+
 def test_sweep_first_scores_the_first_step_over_its_crossing():
     wall = _wall()
     _, _, plain = _run(WALL_CONFIG, wall)
@@ -236,13 +264,15 @@ def test_goal_cost_of_the_selected_rollout(goal_reach):
 def test_new_options_are_validated():
     for field, value in [("sampling", "free"), ("goal_reach", 1), ("update_unclipped", "yes"), ("noise_smoothing", 1.0), ("target_ess", 0.0), ("target_ess", 2.0),
                          ("safety_check", 1), ("check_substeps", 0), ("check_margin", -0.1),
-                         ("predict_motion", "yes"), ("sweep_first", 1), ("stall_steps", -1), ("stall_steps", 2.0),
+                         ("predict_motion", "yes"), ("sweep_first", 1), ("follow_executed", 1), ("stall_steps", -1), ("stall_steps", 2.0),
                          ("stall_ess", 0.0),
                          ("stall_progress", 0.0)]:
         with pytest.raises(ValueError, match=field):
             MPPIConfig(**{field: value, "target_ess": 0.02} if field != "target_ess" else {field: value})
     with pytest.raises(ValueError, match="stall_steps needs target_ess"):
         MPPIConfig(stall_steps=10)
+    with pytest.raises(ValueError, match="follow_executed needs safety_check"):
+        MPPIConfig(follow_executed=True)
 
 
 STALL_CONFIG = MPPIConfig(samples=400, horizon=5, max_points=512, broad_phase=False, target_ess=0.1,
@@ -307,16 +337,17 @@ def test_ours_per_scenario_fields():
     assert spheres.update_unclipped and spheres.goal_reach and spheres.convex_link == 0
     assert 0 < spheres.noise_smoothing < 1 and cluttered.noise_smoothing == 0
     assert spheres.sweep_first and not cluttered.sweep_first
+    assert spheres.follow_executed and not cluttered.follow_executed
     assert cluttered.update_unclipped and not cluttered.goal_reach and cluttered.convex_link > 0
     assert cluttered.w_coll == cluttered.w_coll_terminal < spheres.w_coll
     assert cluttered.stall_steps > 0 and spheres.stall_steps == 0 and cluttered.hold_time == 0
     for scenario in ("charging", "custom"):
         other = mppi_config("ours", scenario, 4, n_points=8, margin_extra=0.7)
         assert not other.update_unclipped and not other.goal_reach and other.convex_link == 0
-        assert other.noise_smoothing == 0 and not other.sweep_first
+        assert other.noise_smoothing == 0 and not other.sweep_first and not other.follow_executed
         assert dataclasses.replace(other, update_unclipped=True, goal_reach=True, samples=spheres.samples,
                                    horizon=spheres.horizon, noise_smoothing=spheres.noise_smoothing,
-                                   sweep_first=True) == spheres
+                                   sweep_first=True, follow_executed=True) == spheres
 
 
 @pytest.mark.parametrize("broad_phase", [True, False])
