@@ -655,8 +655,10 @@ def mppi_step(spec: RobotSpec, config: MPPIConfig, shape, state: MPPIState, arc,
     clearance, choice = jnp.asarray(jnp.nan, arc.dtype), jnp.asarray(0)
     if c.safety_check:
         safest = jnp.argmax(dist[:, 0])
-        candidates = jnp.stack([action, u[best, 0], u[safest, 0]]
-                               + [s * action for s in CHECK_SCALES] + [jnp.zeros_like(action)])
+        # Each candidate's controls over the horizon (H, M, 3); the check judges the first.
+        plans = jnp.stack([updated, u[best], u[safest]] + [s * updated for s in CHECK_SCALES]
+                          + [jnp.zeros_like(updated)])
+        candidates = plans[:, 0]
         if c.limit_action:
             candidates = jax.vmap(lambda a: limit_to_state_bounds(arc, a, c.dt, spec))(candidates)
         needed = c.safety_margin + c.check_margin
@@ -677,10 +679,8 @@ def mppi_step(spec: RobotSpec, config: MPPIConfig, shape, state: MPPIState, arc,
         ok = clear >= needed
         choice = jnp.where(jnp.any(ok), jnp.argmax(ok), jnp.argmax(clear))
         action, clearance = candidates[choice], clear[choice]
-        if c.follow_executed:  # the controls each candidate starts, in the candidates' order
-            plans = jnp.stack([raw, u[best], u[safest]] + [s * updated for s in CHECK_SCALES]
-                              + [jnp.zeros_like(raw)])
-            raw = plans[choice]
+        if c.follow_executed:  # the executed candidate's plan is the next warm start (the MPPI plan unbounded)
+            raw = jnp.where(choice == 0, raw, plans[choice])
     elif c.limit_action:
         action = limit_to_state_bounds(arc, action, c.dt, spec)
     fill = raw[-1:] if c.shift_fill == "last" else jnp.zeros_like(raw[-1:])
