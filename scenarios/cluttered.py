@@ -8,6 +8,12 @@ each sphere: about 500). The end effector must reach (4.8, 0, 3.6) within
 
     python -m scenarios.cluttered --links 7
 
+With ``--goal random`` the goal is instead the end effector of a random
+configuration of the robot (arc lengths uniform in their limits, drawn from
+``env_seed``) that keeps at least ``RANDOM_GOAL_CLEARANCE`` from the boxes and
+puts the end effector behind them, as the paper's goal is (x >=
+``RANDOM_GOAL_MIN_X``, z >= ``RANDOM_GOAL_MIN_Z``): other goals in the same world.
+
 Writes recording.rrd and recording.mcap (replay: ``rerun recording.rrd``).
 
 Scenario option (kept in the run's settings when given): density, the observed
@@ -17,9 +23,13 @@ density=16``). The paper's 4 leaves holes up to 0.8 m across in the cloud.
 
 from __future__ import annotations
 
+import jax
+import numpy as np
+
+from ncedf.robot import RobotSpec, end_effector_pose, sample_arc_lengths
 from scenarios.cli import base_settings, make_parser, run_cli
-from scenarios.episode import EpisodeSettings, Scene, make_scene, option_positive, require_fixed_goal, scenario_options
-from scenarios.world import Box, MovingSphere, World
+from scenarios.episode import GOALS, EpisodeSettings, Scene, make_scene, option_positive, scenario_options
+from scenarios.world import Box, MovingSphere, World, true_min_distance
 
 #: Static boxes: (centre, full edge lengths), m.
 BOXES = (
@@ -41,6 +51,12 @@ GOAL = (4.8, 0.0, 3.6)
 TOLERANCE = 0.4
 MAX_STEPS = 300
 OPTIONS = ("density",)
+#: ``--goal random``: the configuration's least exact distance to the boxes, m ...
+RANDOM_GOAL_CLEARANCE = 0.3
+#: ... and the end effector's least x and z, m (behind the boxes, above the lower one).
+RANDOM_GOAL_MIN_X = 3.5
+RANDOM_GOAL_MIN_Z = 0.5
+MAX_ATTEMPTS = 10_000
 
 
 def make_world(density: float = DENSITY) -> World:
@@ -54,11 +70,28 @@ def make_world(density: float = DENSITY) -> World:
     )
 
 
+def random_goal(env_seed: int, spec: RobotSpec) -> tuple[np.ndarray, np.ndarray, int]:
+    """The ``--goal random`` goal of ``env_seed`` (module docstring): (end effector position (3,) m,
+    its configuration's arc lengths (M, 3) m, attempts used). Attempt ``i`` draws from
+    ``fold_in(PRNGKey(env_seed), i)``."""
+    boxes = World(boxes=tuple(Box(centre, size) for centre, size in BOXES))
+    base = jax.random.PRNGKey(env_seed)
+    for attempt in range(MAX_ATTEMPTS):
+        arc = np.asarray(sample_arc_lengths(jax.random.fold_in(base, attempt), spec, (spec.n_links,)), np.float32)
+        tip = np.asarray(end_effector_pose(arc, spec)[:3, 3], np.float64)
+        if (tip[0] >= RANDOM_GOAL_MIN_X and tip[2] >= RANDOM_GOAL_MIN_Z
+                and true_min_distance(boxes, spec, arc, 0.0) >= RANDOM_GOAL_CLEARANCE):
+            return tip, arc, attempt + 1
+    raise ValueError(f"no random goal for env_seed {env_seed} in {MAX_ATTEMPTS} attempts")
+
+
 def build(settings: EpisodeSettings) -> Scene:
-    """The cluttered scene for ``settings`` (option ``density``; fixed goal)."""
-    require_fixed_goal(settings)
+    """The cluttered scene for ``settings`` (option ``density``; the paper's goal or a random one)."""
     options = scenario_options(settings, OPTIONS)
     density = option_positive("density", options.get("density", str(DENSITY)))
+    if settings.goal == "random":
+        goal, _, attempts = random_goal(settings.env_seed, RobotSpec(settings.links))
+        return make_scene(settings, make_world(density), goal, TOLERANCE, MAX_STEPS, goal_attempts=attempts)
     return make_scene(settings, make_world(density), GOAL, TOLERANCE, MAX_STEPS)
 
 
@@ -66,10 +99,13 @@ def main(argv: list[str] | None = None) -> int:
     parser = make_parser("cluttered", __doc__, max_steps=MAX_STEPS)
     parser.add_argument("--density", help=f"observed points per square metre of box face (default {DENSITY}, "
                                           "the paper's)")
+    parser.add_argument("--goal", choices=GOALS, default="fixed",
+                        help=f"fixed: the paper's {GOAL}; random: the end effector of a random configuration "
+                             "clear of the boxes, behind them (drawn from --env-seed)")
 
     def settings(args) -> EpisodeSettings:
         options = (("density", args.density),) if args.density is not None else ()
-        return base_settings("cluttered", args, options=options)
+        return base_settings("cluttered", args, goal=args.goal, options=options)
 
     return run_cli(parser, argv, settings)
 

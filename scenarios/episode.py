@@ -240,7 +240,8 @@ def build_scene(settings: EpisodeSettings) -> Scene:
 def require_fixed_goal(settings: EpisodeSettings) -> None:
     """For scenarios with one goal: refuse ``goal='random'``."""
     if settings.goal != "fixed":
-        raise ValueError(f"scenario {settings.scenario} has a fixed goal; goal {settings.goal!r} is for spheres")
+        raise ValueError(f"scenario {settings.scenario} has a fixed goal; goal {settings.goal!r} is for spheres "
+                         "and cluttered")
 
 
 def scenario_options(settings: EpisodeSettings, known: tuple[str, ...] = ()) -> dict[str, str]:

@@ -4,10 +4,12 @@ import dataclasses
 import os
 import signal
 
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from ncedf.robot import RobotSpec
+from ncedf.geometry import robot_mesh_arrays
+from ncedf.robot import RobotSpec, end_effector_pose
 from recorder import inspect as recorder_inspect
 from recorder import load_run
 from scenarios import charging, cluttered, custom, spheres
@@ -216,9 +218,37 @@ def test_charging_goal_is_a_pose_approaching_along_x():
     assert scene.config.max_points >= scene.observer.n_points
 
 
+def _box_signed_distance(points: np.ndarray, centre, size) -> np.ndarray:
+    q = np.abs(points - np.asarray(centre)) - np.asarray(size) / 2
+    return np.linalg.norm(np.maximum(q, 0.0), axis=-1) + np.minimum(q.max(axis=-1), 0.0)
+
+
+@pytest.mark.parametrize("links, env_seed", [(4, 0), (5, 7)])
+def test_cluttered_random_goal_is_reachable_behind_the_boxes_and_clear_of_them(links, env_seed):
+    spec = RobotSpec(links)
+    goal, arc, attempts = cluttered.random_goal(env_seed, spec)
+    again, arc_again, attempts_again = cluttered.random_goal(env_seed, spec)
+    np.testing.assert_array_equal(goal, again)
+    np.testing.assert_array_equal(arc, arc_again)
+    assert attempts == attempts_again >= 1
+    assert not np.allclose(goal, cluttered.random_goal(env_seed + 1, spec)[0])
+    assert goal[0] >= cluttered.RANDOM_GOAL_MIN_X and goal[2] >= cluttered.RANDOM_GOAL_MIN_Z
+    assert np.all((arc >= spec.l_min) & (arc <= spec.l_max))
+    np.testing.assert_allclose(goal, np.asarray(end_effector_pose(jnp.asarray(arc), spec))[:3, 3], atol=1e-6)
+    # The configuration's surface (its mesh vertices) against the boxes' closed-form signed distance.
+    vertices, _ = robot_mesh_arrays(jnp.asarray(arc), spec)
+    vertices = np.asarray(vertices, np.float64)
+    clearance = min(_box_signed_distance(vertices, c, size).min() for c, size in cluttered.BOXES)
+    assert clearance >= cluttered.RANDOM_GOAL_CLEARANCE - 1e-5
+    scene = Episode(EpisodeSettings("cluttered", links, 0, env_seed=env_seed, goal="random", shape="exact")).scene
+    np.testing.assert_array_equal(scene.goal, goal)
+    assert scene.info["goal_attempts"] == attempts
+    assert not np.allclose(goal, cluttered.GOAL)
+
+
 def test_scenarios_refuse_settings_they_do_not_use():
     with pytest.raises(ValueError, match="random"):
-        Episode(EpisodeSettings("cluttered", 4, 0, goal="random"))
+        Episode(EpisodeSettings("charging", 4, 0, goal="random"))
     with pytest.raises(ValueError, match="options"):
         Episode(EpisodeSettings("charging", 4, 0, options=(("x", "1"),)))
     with pytest.raises(ValueError, match="obstacles"):
