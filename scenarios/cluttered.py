@@ -28,7 +28,8 @@ import numpy as np
 
 from ncedf.robot import RobotSpec, end_effector_pose, sample_arc_lengths
 from scenarios.cli import base_settings, make_parser, run_cli
-from scenarios.episode import GOALS, EpisodeSettings, Scene, make_scene, option_positive, scenario_options
+from scenarios.episode import (DRAW_ATTEMPTS, GOALS, EpisodeSettings, Scene, make_scene, option_positive,
+                               scenario_options)
 from scenarios.world import Box, MovingSphere, World, true_min_distance
 
 #: Static boxes: (centre, full edge lengths), m.
@@ -56,7 +57,6 @@ RANDOM_GOAL_CLEARANCE = 0.3
 #: ... and the end effector's least x and z, m (behind the boxes, above the lower one).
 RANDOM_GOAL_MIN_X = 3.5
 RANDOM_GOAL_MIN_Z = 0.5
-MAX_ATTEMPTS = 10_000
 
 
 def make_world(density: float = DENSITY) -> World:
@@ -76,13 +76,13 @@ def random_goal(env_seed: int, spec: RobotSpec) -> tuple[np.ndarray, np.ndarray,
     ``fold_in(PRNGKey(env_seed), i)``."""
     boxes = World(boxes=tuple(Box(centre, size) for centre, size in BOXES))
     base = jax.random.PRNGKey(env_seed)
-    for attempt in range(MAX_ATTEMPTS):
+    for attempt in range(DRAW_ATTEMPTS):
         arc = np.asarray(sample_arc_lengths(jax.random.fold_in(base, attempt), spec, (spec.n_links,)), np.float32)
         tip = np.asarray(end_effector_pose(arc, spec)[:3, 3], np.float64)
         if (tip[0] >= RANDOM_GOAL_MIN_X and tip[2] >= RANDOM_GOAL_MIN_Z
                 and true_min_distance(boxes, spec, arc, 0.0) >= RANDOM_GOAL_CLEARANCE):
             return tip, arc, attempt + 1
-    raise ValueError(f"no random goal for env_seed {env_seed} in {MAX_ATTEMPTS} attempts")
+    raise ValueError(f"no random goal for env_seed {env_seed} in {DRAW_ATTEMPTS} attempts")
 
 
 def build(settings: EpisodeSettings) -> Scene:

@@ -86,6 +86,8 @@ from scenarios.presets import CONTROLLERS, DEFAULT_CONTROLLER, mppi_config
 #: Runnable scenarios: the module ``scenarios.<name>`` defines ``build(settings) -> Scene``.
 SCENARIOS = ("cluttered", "spheres", "charging", "custom")
 GOALS = ("fixed", "random")
+#: Most draws of a random environment or goal from one env_seed before a scenario gives up.
+DRAW_ATTEMPTS = 10_000
 #: Largest angle between the end-effector's approach axis and a pose goal's for success, rad (15 deg).
 ANGLE_TOLERANCE = math.radians(15.0)
 #: Points per link of the recorded backbone polylines.

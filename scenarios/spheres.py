@@ -23,7 +23,7 @@ import numpy as np
 from ncedf.geometry import robot_signed_distance
 from ncedf.robot import RobotSpec, end_effector_pose, sample_arc_lengths
 from scenarios.cli import base_settings, make_parser, run_cli
-from scenarios.episode import GOALS, EpisodeSettings, Scene, make_scene, scenario_options
+from scenarios.episode import DRAW_ATTEMPTS, GOALS, EpisodeSettings, Scene, make_scene, scenario_options
 from scenarios.world import MovingSphere, World
 
 N_SPHERES = 8
@@ -41,7 +41,6 @@ GOAL_CLEARANCE = 2.0
 START_CLEARANCE = 0.1
 TOLERANCE = 0.2
 MAX_STEPS = 200
-MAX_ATTEMPTS = 10_000
 
 _signed_distance = jax.jit(robot_signed_distance, static_argnums=2)
 
@@ -63,7 +62,7 @@ def make_environment(env_seed: int, spec: RobotSpec, goal: str = "fixed") -> tup
         raise ValueError(f"goal must be one of {', '.join(GOALS)}, got {goal!r}")
     low, high = np.asarray(CENTRE_LOW), np.asarray(CENTRE_HIGH)
     base = jax.random.PRNGKey(env_seed)
-    for attempt in range(MAX_ATTEMPTS):
+    for attempt in range(DRAW_ATTEMPTS):
         k_centre, k_velocity, k_goal = jax.random.split(jax.random.fold_in(base, attempt), 3)
         centres = low + (high - low) * np.asarray(jax.random.uniform(k_centre, (N_SPHERES, 3)), np.float64)
         velocities = SPEED * np.asarray(jax.random.uniform(k_velocity, (N_SPHERES, 3)), np.float64)
@@ -77,7 +76,7 @@ def make_environment(env_seed: int, spec: RobotSpec, goal: str = "fixed") -> tup
                                         for c, v in zip(centres.tolist(), velocities.tolist())),
                           observe="centres")
             return world, target, attempt + 1
-    raise ValueError(f"no accepted environment for env_seed {env_seed} in {MAX_ATTEMPTS} attempts")
+    raise ValueError(f"no accepted environment for env_seed {env_seed} in {DRAW_ATTEMPTS} attempts")
 
 
 def build(settings: EpisodeSettings) -> Scene:
