@@ -17,6 +17,7 @@ from scenarios import episode as episode_mod
 from scenarios.episode import Episode, EpisodeSettings
 from scenarios.presets import POINT_BUCKET, mppi_config, point_capacity
 from scenarios.world import true_min_distance
+from test_world import box_sdf_np
 
 TINY = ["--links", "4", "--samples", "16", "--horizon", "4", "--max-steps", "2"]
 
@@ -218,11 +219,6 @@ def test_charging_goal_is_a_pose_approaching_along_x():
     assert scene.config.max_points >= scene.observer.n_points
 
 
-def _box_signed_distance(points: np.ndarray, centre, size) -> np.ndarray:
-    q = np.abs(points - np.asarray(centre)) - np.asarray(size) / 2
-    return np.linalg.norm(np.maximum(q, 0.0), axis=-1) + np.minimum(q.max(axis=-1), 0.0)
-
-
 @pytest.mark.parametrize("links, env_seed", [(4, 0), (5, 7)])
 def test_cluttered_random_goal_is_reachable_behind_the_boxes_and_clear_of_them(links, env_seed):
     spec = RobotSpec(links)
@@ -238,7 +234,7 @@ def test_cluttered_random_goal_is_reachable_behind_the_boxes_and_clear_of_them(l
     # The configuration's surface (its mesh vertices) against the boxes' closed-form signed distance.
     vertices, _ = robot_mesh_arrays(jnp.asarray(arc), spec)
     vertices = np.asarray(vertices, np.float64)
-    clearance = min(_box_signed_distance(vertices, c, size).min() for c, size in cluttered.BOXES)
+    clearance = min(box_sdf_np(vertices, c, size).min() for c, size in cluttered.BOXES)
     assert clearance >= cluttered.RANDOM_GOAL_CLEARANCE - 1e-5
     scene = Episode(EpisodeSettings("cluttered", links, 0, env_seed=env_seed, goal="random", shape="exact")).scene
     np.testing.assert_array_equal(scene.goal, goal)
