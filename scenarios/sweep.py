@@ -65,6 +65,7 @@ import argparse
 import concurrent.futures as cf
 import dataclasses
 import functools
+import importlib.util
 import itertools
 import math
 import multiprocessing
@@ -654,9 +655,7 @@ def _main(args: argparse.Namespace, command: str) -> int:
     if args.option:
         common["options"] = tuple(args.option)
     if args.executor == "ray":
-        try:
-            import ray  # noqa: F401
-        except ImportError:
+        if importlib.util.find_spec("ray") is None:
             print("error: --executor ray needs Ray: pip install 'ncedf[cluster]'", file=sys.stderr)
             return 2
     elif args.address is not None:
