@@ -159,12 +159,12 @@ def _draw(ax, snap, title: str, limits) -> None:
 
 
 def snapshot_strip(rec: Recordings, links: int):
-    """Figs. 5-7: a cluttered run with ``links`` links (the paper's cloud density) at the paper's steps and
+    """Figs. 5-7: a cluttered run with ``links`` links (the paper's goal and cloud density) at the paper's steps and
     its reach step."""
     runs = rec.scenario("cluttered")
     if not runs.empty:
         density = runs["world.density"] if "world.density" in runs else paper.TABLE4_DENSITY
-        runs = runs[(runs["links"] == links) & (density == paper.TABLE4_DENSITY)]
+        runs = runs[(runs["links"] == links) & (density == paper.TABLE4_DENSITY) & (runs["goal"] == "fixed")]
     run = _pick(runs)
     if run is None:
         return f"cluttered L{links}: skipped, no {links}-link cluttered recordings " \
@@ -249,7 +249,6 @@ def success_rates(rec: Recordings):
     runs = rec.scenario("spheres")
     if runs.empty:
         return "success rates: skipped, no dynamic-sphere recordings (python -m scenarios.reproduce table3 --out RUNS)"
-    runs = runs.assign(goal=runs["settings.goal"].fillna("fixed") if "settings.goal" in runs else "fixed")
     groups = list(runs.groupby(["shape", "controller", "goal", "quick"]))
     order = {s: i for i, s in enumerate(paper.TABLE3)}
     groups.sort(key=lambda g: (order.get(g[0][0], 99), g[0][1], g[0][2]))

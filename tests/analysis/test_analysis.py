@@ -1,9 +1,9 @@
 """analysis/make_tables.py and make_figures.py on a small folder of real recordings.
 
 The folder: tiny dynamic-sphere episodes (16 rollouts, horizon 3; environments 0-4 end in a mix
-of outcomes), three tiny cluttered episodes (one at a sparser cloud), and two tiny networks trained and timed by
-scenarios.reproduce (Table II: with and without the over-estimation loss). The CSV numbers are
-checked against values computed here from what the episodes returned (EpisodeResult) and from
+of outcomes), four tiny cluttered episodes (one at a sparser cloud, one with a random goal), and
+two tiny networks trained and timed by scenarios.reproduce (Table II: with and without the
+over-estimation loss). The CSV numbers are checked against values computed here from what the episodes returned (EpisodeResult) and from
 the saved weights evaluated again, not from the recordings the scripts read.
 """
 
@@ -41,10 +41,10 @@ def sphere_settings(env: int) -> EpisodeSettings:
                            horizon=3, max_steps=25)
 
 
-def cluttered_settings(seed: int, density: str | None = None) -> EpisodeSettings:
+def cluttered_settings(seed: int, density: str | None = None, goal: str = "fixed") -> EpisodeSettings:
     options = (("density", density),) if density else ()
     return EpisodeSettings("cluttered", 4, seed=seed, shape="spheres", controller="paper", samples=16, horizon=3,
-                           max_steps=4, options=options)
+                           max_steps=4, options=options, goal=goal)
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -65,7 +65,7 @@ def folder(tmp_path_factory, cache):
     runs = tmp_path_factory.mktemp("runs")
     results = {}
     for settings in [sphere_settings(e) for e in range(SPHERE_ENVS)] + [cluttered_settings(s) for s in (0, 1)] + [
-            cluttered_settings(0, density="2")]:
+            cluttered_settings(0, density="2"), cluttered_settings(0, goal="random")]:
         sub = runs / settings.scenario
         sub.mkdir(exist_ok=True)
         name = episode_name(settings)
@@ -142,14 +142,19 @@ def test_table4_matches_the_episodes(folder, tables):
     _, results, _ = folder
     out, _ = tables
     df = pd.read_csv(out / "table4.csv")
-    assert sorted(df["density"]) == [2.0, 4.0]  # a denser or sparser cloud gets a row of its own
-    row = df.set_index("density").loc[4.0]
-    ours = [r for s, r in results.values() if s.scenario == "cluttered" and not s.options]
+    # a denser or sparser cloud, and other goals, get rows of their own
+    assert sorted(zip(df["goal"], df["density"])) == [("fixed", 2.0), ("fixed", 4.0), ("random", 4.0)]
+    row = df.set_index(["goal", "density"]).loc[("fixed", 4.0)]
+    ours = [r for s, r in results.values() if s.scenario == "cluttered" and not s.options and s.goal == "fixed"]
     assert row["links"] == 4 and row["episodes"] == len(ours) == 2
     assert row["n_success"] == sum(r.outcome == "success" for r in ours)
     mean, std = pooled(ours)
     assert row["mppi_step_s_mean"] == pytest.approx(mean, rel=1e-4)
     assert row["paper_reach_step"] == 158
+    other = df.set_index(["goal", "density"]).loc[("random", 4.0)]
+    drawn = [r for s, r in results.values() if s.scenario == "cluttered" and s.goal == "random"]
+    assert other["episodes"] == len(drawn) == 1 and other["n_success"] == (drawn[0].outcome == "success")
+    assert math.isnan(other["paper_reach_step"])  # the paper has figures for its own goal only
 
 
 def test_table2_metrics_match_the_saved_networks(folder, tables):
@@ -216,6 +221,19 @@ def test_figures_and_their_data(folder, tmp_path):
     fig3 = pd.read_csv(tmp_path / "fig3_ncedf_slices.csv")
     assert fig3["exact"].min() < 0.02
     assert np.allclose(fig3["difference"], fig3["learned"] - fig3["exact"], atol=1e-5)
+
+
+def test_the_cluttered_snapshots_draw_the_papers_goal_only(folder):
+    from analysis.figures import snapshot_strip
+    from analysis.load import load
+
+    rec = load(folder[0])
+    drawn = rec.runs[(rec.runs["scenario"] == "cluttered") & (rec.runs["goal"] == "random")]
+    assert len(drawn) == 1
+    fig, data = snapshot_strip(dataclasses.replace(rec, runs=rec.runs.drop(drawn.index)), 4)
+    assert set(data["run"]) != set(drawn["path"])
+    message = snapshot_strip(dataclasses.replace(rec, runs=drawn), 4)
+    assert isinstance(message, str) and "skipped" in message
 
 
 def test_reproduce_skips_complete_networks_and_timing_cases(folder, capsys):
