@@ -191,13 +191,15 @@ def table4(rec: Recordings) -> Table | str:
         reached = g.loc[g["outcome"] == "success", "reach_step"]
         reach_mean, reach_std, reach_n = mean_std(reached)
         ref = paper.TABLE4.get(int(links), (np.nan,) * 3) if goal == "fixed" else (np.nan,) * 3
-        data.append({"goal": goal, "links": int(links), "density": density, "shape": shape, "controller": controller,
-                     "samples": int(samples), "horizon": int(horizon), "max_steps": int(max_steps), "quick": bool(quick), **r,
+        data.append({"goal": goal, "links": int(links), "density": density, "shape": shape,
+                     "controller": controller, "samples": int(samples), "horizon": int(horizon),
+                     "max_steps": int(max_steps), "quick": bool(quick), **r,
                      "mppi_step_s_mean": t_mean, "mppi_step_s_std": t_std, "mppi_steps": t_n,
                      "reach_step_mean": reach_mean, "reach_step_std": reach_std, "reached": reach_n,
                      "paper_mppi_step_s_mean": ref[0], "paper_mppi_step_s_std": ref[1], "paper_reach_step": ref[2]})
         rows.append([f"{int(links)}{_quick_tag(quick)}", goal, fmt(density, 1), shape,
-                     f"{controller} ({int(samples)}, H {int(horizon)})", str(r["episodes"]), fmt_rate(r["success"], r["success_low"], r["success_high"]),
+                     f"{controller} ({int(samples)}, H {int(horizon)})", str(r["episodes"]),
+                     fmt_rate(r["success"], r["success_low"], r["success_high"]),
                      fmt_rate(r["collision"], r["collision_low"], r["collision_high"]),
                      fmt_pm(t_mean, t_std, 4), fmt_pm(ref[0], ref[1], 4),
                      fmt_pm(reach_mean, reach_std, 1) + (f" (n={reach_n})" if reach_n else ""), fmt(ref[2], 0)])
