@@ -16,7 +16,7 @@ and ``paper`` at ``ours``'s rollouts and horizon (the reference of the solver
 time). Every variant runs the same
 episodes (``scenarios.episode``, no recording): the cluttered scene for each of
 ``--links`` x ``--seeds`` controller seeds, and the dynamic spheres for
-``--envs`` environments x ``--goals`` (controller seed 0), 4 links. Printed per
+``--envs`` environments x ``--goals`` (controller seed ``--seed0``), 4 links. Printed per
 variant and group (cluttered L4 / L5 / L7, spheres): episodes, success /
 collision / stuck counts with 95% Wilson intervals of their rates, the median
 reach step of the successes, and the solver time per MPPI step (mean +- std
@@ -466,7 +466,7 @@ def episodes(args) -> list[tuple[str, EpisodeSettings]]:
     if "spheres" in args.scenarios:
         for goal in args.goals:
             for env in range(args.env0, args.env0 + args.envs):
-                out.append((f"spheres {goal}", EpisodeSettings("spheres", 4, 0, env_seed=env, goal=goal,
+                out.append((f"spheres {goal}", EpisodeSettings("spheres", 4, args.seed0, env_seed=env, goal=goal,
                                                                max_steps=args.max_steps)))
     return out
 
@@ -573,7 +573,8 @@ def main(argv=None) -> int:
     p.add_argument("--links", default="4,5,7", type=lambda t: parse_list(t, int, "links"),
                    help="cluttered link counts (default 4,5,7)")
     p.add_argument("--seeds", type=positive, default=3, help="cluttered controller seeds per link count (default 3)")
-    p.add_argument("--seed0", type=int, default=0, help="first controller seed (default 0)")
+    p.add_argument("--seed0", type=int, default=0,
+                   help="first controller seed; the spheres' episodes use this one (default 0)")
     p.add_argument("--density", type=density_arg,
                    help="cluttered: observed points per m^2 of box face (default: the paper's 4)")
     p.add_argument("--envs", type=positive, default=10, help="spheres environments per goal kind (default 10)")
