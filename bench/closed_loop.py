@@ -353,6 +353,10 @@ In the cluttered scene (``--variants ours:follow_executed=true --scenarios
 cluttered --seeds 20``): 20 / 20 / 20 successes, no collision, median reach
 73 / 30 / 12 (``ours`` 96 / 27 / 12), smallest exact clearance 0.066 / 0.064
 / 0.141 m; ``ours`` leaves it off there, so the Table IV episodes repeat.
+Another controller seed (``--seed0 1``, the same 200 environments per goal
+kind): fixed goal 196 / 4 / 0, the 4 collisions exactly the environments
+where the oracle finds no motion (45, 53, 64, 93); random goals 196 / 4 / 0
+(25, 53, 75, 158); median reach 11 and 12 steps.
 
 ``--timing 8`` with the surface model: L4 131.4 / 111.1 ms (1.18), L7 58.5 /
 41.2 (1.42), spheres 84.3 / 80.8 (1.04) (before it: L4 64.8 / 62.8 (1.03),
