@@ -164,7 +164,7 @@ def snapshot_strip(rec: Recordings, links: int):
     runs = rec.scenario("cluttered")
     if not runs.empty:
         density = runs["world.density"] if "world.density" in runs else paper.TABLE4_DENSITY
-        runs = runs[(runs["links"] == links) & (density == paper.TABLE4_DENSITY) & (runs["goal"] == "fixed")]
+        runs = runs[(runs["links"] == links) & (density == paper.TABLE4_DENSITY) & (runs["goal_kind"] == "fixed")]
     run = _pick(runs)
     if run is None:
         return f"cluttered L{links}: skipped, no {links}-link cluttered recordings " \
@@ -249,7 +249,7 @@ def success_rates(rec: Recordings):
     runs = rec.scenario("spheres")
     if runs.empty:
         return "success rates: skipped, no dynamic-sphere recordings (python -m scenarios.reproduce table3 --out RUNS)"
-    groups = list(runs.groupby(["shape", "controller", "goal", "quick"]))
+    groups = list(runs.groupby(["shape", "controller", "goal_kind", "quick"]))
     order = {s: i for i, s in enumerate(paper.TABLE3)}
     groups.sort(key=lambda g: (order.get(g[0][0], 99), g[0][1], g[0][2]))
     rows = []

@@ -34,7 +34,8 @@ class Recordings:
     """What a folder holds.
 
     runs: one row per usable run (recorder.read.load_summaries columns plus ``folder``, ``quick`` and
-      ``goal``: the run's goal kind, ``fixed`` where its settings name none);
+      ``goal_kind``: the settings' goal, ``fixed``, ``random`` or a position ``X,Y,Z``; ``fixed`` where
+      they name none);
     manifests: one row per experiment manifest;
     problems: (path, why) of every recording left out; seconds: time to read the folder;
     files: recordings found.
@@ -85,7 +86,7 @@ def load(folder: str | Path) -> Recordings:
     quick_folders = set(manifests.loc[manifests["quick"].astype(bool), "folder"]) if "quick" in manifests else set()
     marked = runs["quick"].fillna(False).astype(bool) if "quick" in runs else False
     runs["quick"] = runs["folder"].isin(quick_folders) | marked
-    runs["goal"] = runs["settings.goal"].fillna("fixed") if "settings.goal" in runs else "fixed"
+    runs["goal_kind"] = runs["settings.goal"].fillna("fixed") if "settings.goal" in runs else "fixed"
     return Recordings(runs, manifests, problems, seconds, files)
 
 

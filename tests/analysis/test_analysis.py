@@ -228,7 +228,7 @@ def test_the_cluttered_snapshots_draw_the_papers_goal_only(folder):
     from analysis.load import load
 
     rec = load(folder[0])
-    drawn = rec.runs[(rec.runs["scenario"] == "cluttered") & (rec.runs["goal"] == "random")]
+    drawn = rec.runs[(rec.runs["scenario"] == "cluttered") & (rec.runs["goal_kind"] == "random")]
     assert len(drawn) == 1
     fig, data = snapshot_strip(dataclasses.replace(rec, runs=rec.runs.drop(drawn.index)), 4)
     assert set(data["run"]) != set(drawn["path"])
