@@ -13,6 +13,8 @@ configuration of the robot (arc lengths uniform in their limits, drawn from
 ``env_seed``) that keeps at least ``RANDOM_GOAL_CLEARANCE`` from the boxes and
 puts the end effector behind them, as the paper's goal is (x >=
 ``RANDOM_GOAL_MIN_X``, z >= ``RANDOM_GOAL_MIN_Z``): other goals in the same world.
+With ``--goal X,Y,Z`` the goal is that position, m (outside the boxes, within the
+robot's length of its base).
 
 Writes recording.rrd and recording.mcap (replay: ``rerun recording.rrd``).
 
@@ -24,13 +26,14 @@ density=16``). The paper's 4 leaves holes up to 0.8 m across in the cloud.
 from __future__ import annotations
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from ncedf.robot import RobotSpec, end_effector_pose, sample_arc_lengths
 from scenarios.cli import base_settings, make_parser, run_cli
-from scenarios.episode import (DRAW_ATTEMPTS, GOALS, EpisodeSettings, Scene, make_scene, option_positive,
-                               scenario_options)
-from scenarios.world import Box, MovingSphere, World, true_min_distance
+from scenarios.episode import (DRAW_ATTEMPTS, EpisodeSettings, Scene, check_reach, goal_position, make_scene,
+                               option_positive, scenario_options)
+from scenarios.world import Box, MovingSphere, World, box_sdf, true_min_distance
 
 #: Static boxes: (centre, full edge lengths), m.
 BOXES = (
@@ -85,10 +88,24 @@ def random_goal(env_seed: int, spec: RobotSpec) -> tuple[np.ndarray, np.ndarray,
     raise ValueError(f"no random goal for env_seed {env_seed} in {DRAW_ATTEMPTS} attempts")
 
 
+def check_goal(position, spec: RobotSpec) -> None:
+    """ValueError when a goal position (3,) m lies inside a box or beyond the robot's reach."""
+    for centre, size in BOXES:
+        inside, _ = box_sdf(jnp.asarray(position), jnp.asarray(centre), 0.5 * jnp.asarray(size))
+        if float(inside) < 0:
+            raise ValueError(f"goal {tuple(float(v) for v in position)} lies inside the box at {centre} "
+                             f"(size {size})")
+    check_reach(position, spec)
+
+
 def build(settings: EpisodeSettings) -> Scene:
-    """The cluttered scene for ``settings`` (option ``density``; the paper's goal or a random one)."""
+    """The cluttered scene for ``settings`` (option ``density``; the paper's goal, a random one or a position)."""
     options = scenario_options(settings, OPTIONS)
     density = option_positive("density", options.get("density", str(DENSITY)))
+    position = goal_position(settings.goal)
+    if position is not None:
+        check_goal(position, RobotSpec(settings.links))
+        return make_scene(settings, make_world(density), position, TOLERANCE, MAX_STEPS)
     if settings.goal == "random":
         goal, _, attempts = random_goal(settings.env_seed, RobotSpec(settings.links))
         return make_scene(settings, make_world(density), goal, TOLERANCE, MAX_STEPS, goal_attempts=attempts)
@@ -99,9 +116,10 @@ def main(argv: list[str] | None = None) -> int:
     parser = make_parser("cluttered", __doc__, max_steps=MAX_STEPS)
     parser.add_argument("--density", help=f"observed points per square metre of box face (default {DENSITY}, "
                                           "the paper's)")
-    parser.add_argument("--goal", choices=GOALS, default="fixed",
+    parser.add_argument("--goal", default="fixed", metavar="fixed|random|X,Y,Z",
                         help=f"fixed: the paper's {GOAL}; random: the end effector of a random configuration "
-                             "clear of the boxes, behind them (drawn from --env-seed)")
+                             "clear of the boxes, behind them (drawn from --env-seed); X,Y,Z: that position, m "
+                             "(default fixed)")
 
     def settings(args) -> EpisodeSettings:
         options = (("density", args.density),) if args.density is not None else ()

@@ -85,6 +85,7 @@ from scenarios.presets import CONTROLLERS, DEFAULT_CONTROLLER, mppi_config
 
 #: Runnable scenarios: the module ``scenarios.<name>`` defines ``build(settings) -> Scene``.
 SCENARIOS = ("cluttered", "spheres", "charging", "custom")
+#: Goal kinds of the scenarios that draw goals; a goal may also be a position "X,Y,Z" (m).
 GOALS = ("fixed", "random")
 #: Most draws of a random environment or goal from one env_seed before a scenario gives up.
 DRAW_ATTEMPTS = 10_000
@@ -118,7 +119,8 @@ class EpisodeSettings:
       controller: a preset of ``scenarios.presets`` (``paper``, ``release`` or ``ours``).
       samples, horizon: override the preset's rollouts and horizon.
       max_steps: override the scenario's step budget.
-      goal: ``fixed`` or ``random`` (scenarios that draw goals).
+      goal: ``fixed``, ``random`` or a position ``"X,Y,Z"``, m (scenarios that draw
+        goals; :func:`goal_position`; kept as the floats' repr).
       options: scenario-specific (name, value) text pairs, kept sorted by name.
     """
 
@@ -154,8 +156,9 @@ class EpisodeSettings:
             raise ValueError(f"unknown controller {self.controller!r}; choose one of {', '.join(CONTROLLERS)}")
         for name in ("samples", "horizon", "max_steps"):
             _check_count(name, getattr(self, name))
-        if self.goal not in GOALS:
-            raise ValueError(f"goal must be one of {', '.join(GOALS)}, got {self.goal!r}")
+        position = goal_position(self.goal)
+        if position is not None:
+            object.__setattr__(self, "goal", ",".join(map(repr, position)))
         try:
             pairs = tuple((str(k), str(v)) for k, v in self.options)
         except (TypeError, ValueError):
@@ -181,6 +184,26 @@ class EpisodeSettings:
         d = dict(d)
         d["options"] = tuple(tuple(pair) for pair in d.get("options", ()))
         return cls(**d)
+
+
+def goal_position(goal: str) -> tuple[float, float, float] | None:
+    """A goal given as a position ``"X,Y,Z"``: its three floats, m; None for a kind in ``GOALS``;
+    ValueError naming anything else."""
+    if goal in GOALS:
+        return None
+    try:
+        return option_vector("goal", goal)
+    except (ValueError, AttributeError):
+        raise ValueError(f"goal must be {', '.join(GOALS)} or a position X,Y,Z in m, got {goal!r}") from None
+
+
+def check_reach(position, spec: RobotSpec) -> None:
+    """ValueError when a goal position (3,) m lies beyond the robot's length from its base (the origin)."""
+    distance = float(np.linalg.norm(position))
+    reach = spec.n_links * spec.length
+    if distance > reach:
+        raise ValueError(f"goal {tuple(float(v) for v in position)} is {distance:.2f} m from the base, beyond the "
+                         f"reach of the {spec.n_links}-link robot ({reach:g} m)")
 
 
 def episode_name(settings: EpisodeSettings) -> str:

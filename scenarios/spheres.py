@@ -5,7 +5,7 @@ centres uniform in x, y in [-4, 4], z in [-1, 6], pairwise at least 1.5 m
 apart; velocity components uniform in [0, 1) m/s, the sign flipping every 2 s.
 The controller observes the sphere centres only (its safety margin grows by the
 radius). The goal is (4, 0, 4), or with ``--goal random`` the end effector of a
-random valid configuration. An environment is accepted when the goal is at
+random valid configuration, or with ``--goal X,Y,Z`` that position. An environment is accepted when the goal is at
 least 2 m from every centre and the straight robot at least 0.1 m from every
 sphere (robot-to-centre distance > radius + 0.1); otherwise it is redrawn,
 deterministically: attempt ``i`` uses ``fold_in(PRNGKey(env_seed), i)``.
@@ -23,7 +23,8 @@ import numpy as np
 from ncedf.geometry import robot_signed_distance
 from ncedf.robot import RobotSpec, end_effector_pose, sample_arc_lengths
 from scenarios.cli import base_settings, make_parser, run_cli
-from scenarios.episode import DRAW_ATTEMPTS, GOALS, EpisodeSettings, Scene, make_scene, scenario_options
+from scenarios.episode import (DRAW_ATTEMPTS, EpisodeSettings, Scene, check_reach, goal_position, make_scene,
+                               scenario_options)
 from scenarios.world import MovingSphere, World
 
 N_SPHERES = 8
@@ -57,16 +58,20 @@ def accepted(centres: np.ndarray, goal: np.ndarray, spec: RobotSpec) -> bool:
 
 
 def make_environment(env_seed: int, spec: RobotSpec, goal: str = "fixed") -> tuple[World, np.ndarray, int]:
-    """The accepted environment of ``env_seed``: (world, goal position (3,), attempts used)."""
-    if goal not in GOALS:
-        raise ValueError(f"goal must be one of {', '.join(GOALS)}, got {goal!r}")
+    """The accepted environment of ``env_seed``: (world, goal position (3,), attempts used).
+    ``goal``: ``fixed``, ``random`` or a position ``"X,Y,Z"`` (m; the spheres are drawn around it)."""
+    position = goal_position(goal)
+    if position is not None:
+        check_reach(position, spec)
     low, high = np.asarray(CENTRE_LOW), np.asarray(CENTRE_HIGH)
     base = jax.random.PRNGKey(env_seed)
     for attempt in range(DRAW_ATTEMPTS):
         k_centre, k_velocity, k_goal = jax.random.split(jax.random.fold_in(base, attempt), 3)
         centres = low + (high - low) * np.asarray(jax.random.uniform(k_centre, (N_SPHERES, 3)), np.float64)
         velocities = SPEED * np.asarray(jax.random.uniform(k_velocity, (N_SPHERES, 3)), np.float64)
-        if goal == "fixed":
+        if position is not None:
+            target = np.asarray(position)
+        elif goal == "fixed":
             target = np.asarray(FIXED_GOAL)
         else:
             arc = sample_arc_lengths(k_goal, spec, (spec.n_links,))
@@ -80,7 +85,7 @@ def make_environment(env_seed: int, spec: RobotSpec, goal: str = "fixed") -> tup
 
 
 def build(settings: EpisodeSettings) -> Scene:
-    """The dynamic-spheres scene for ``settings`` (goal fixed or random; no options)."""
+    """The dynamic-spheres scene for ``settings`` (goal fixed, random or a position; no options)."""
     scenario_options(settings)
     spec = RobotSpec(settings.links)
     world, goal, attempts = make_environment(settings.env_seed, spec, settings.goal)
@@ -89,8 +94,9 @@ def build(settings: EpisodeSettings) -> Scene:
 
 def main(argv: list[str] | None = None) -> int:
     parser = make_parser("spheres", __doc__, max_steps=MAX_STEPS)
-    parser.add_argument("--goal", choices=GOALS, default="fixed",
-                        help="fixed: (4, 0, 4); random: the end effector of a random valid configuration")
+    parser.add_argument("--goal", default="fixed", metavar="fixed|random|X,Y,Z",
+                        help="fixed: (4, 0, 4); random: the end effector of a random valid configuration; "
+                             "X,Y,Z: that position, m (default fixed)")
     return run_cli(parser, argv, lambda args: base_settings("spheres", args, goal=args.goal))
 
 

@@ -17,7 +17,7 @@ import pytest
 from ncedf.mppi import MPPIConfig
 from recorder import load_run
 from scenarios import episode as episode_mod
-from scenarios.episode import Episode, EpisodeSettings, episode_name, goal_errors, run_episode
+from scenarios.episode import Episode, EpisodeSettings, episode_name, goal_errors, goal_position, run_episode
 
 SMALL = dict(samples=16, horizon=4)
 LINKS = 4
@@ -163,6 +163,18 @@ def test_settings_validate_and_round_trip():
             dataclasses.replace(s, **bad)
     with pytest.raises(ValueError, match="colour"):
         EpisodeSettings.from_dict({**s.to_dict(), "colour": "red"})
+
+
+def test_a_goal_position_is_kept_as_floats_and_bad_ones_are_named():
+    s = EpisodeSettings("cluttered", 4, 0, goal=" 4.5, 1,3e0")
+    assert s.goal == "4.5,1.0,3.0" and goal_position(s.goal) == (4.5, 1.0, 3.0)
+    assert EpisodeSettings.from_dict(s.to_dict()) == s
+    assert episode_name(s) == episode_name(dataclasses.replace(s, goal="4.50,1,3"))
+    assert episode_name(s) != episode_name(dataclasses.replace(s, goal="4.5,1,3.1"))
+    assert goal_position("fixed") is None and goal_position("random") is None
+    for bad in ("4,5", "1,2,3,4", "1,nan,2", "x,y,z", "", 5):
+        with pytest.raises(ValueError, match="fixed, random or a position X,Y,Z"):
+            EpisodeSettings("cluttered", 4, 0, goal=bad)
 
 
 def test_episode_names_are_unique_and_file_safe():

@@ -249,3 +249,33 @@ def test_scenarios_refuse_settings_they_do_not_use():
         Episode(EpisodeSettings("charging", 4, 0, options=(("x", "1"),)))
     with pytest.raises(ValueError, match="obstacles"):
         Episode(dataclasses.replace(EpisodeSettings("custom", 4, 0), options=(("goal_position", "1,2,3"),)))
+
+
+def test_a_goal_position_in_the_cluttered_scene_and_among_the_spheres():
+    goal = (4.5, 1.0, 3.0)
+    scene = Episode(EpisodeSettings("cluttered", 4, 0, goal="4.5,1,3", shape="exact")).scene
+    np.testing.assert_array_equal(scene.goal, goal)
+    assert scene.world == cluttered.make_world()  # the paper's world, another goal
+    spec = RobotSpec(4)
+    world, target, _ = spheres.make_environment(3, spec, "-3,2,1")
+    np.testing.assert_array_equal(target, (-3.0, 2.0, 1.0))
+    centres = np.array([s.centre for s in world.spheres])
+    assert np.linalg.norm(centres - target, axis=1).min() >= spheres.GOAL_CLEARANCE  # drawn around it
+
+
+@pytest.mark.parametrize("goal, message", [
+    ("2.5,0,5", r"goal \(2.5, 0.0, 5.0\) lies inside the box at \(2.5, 0.0, 5.0\)"),  # the upper box's centre
+    ("5.3,2.4,2.4", "lies inside the box at \\(5.3, 0.0, 2.0\\)"),  # just inside a corner of the right box
+    ("0,0,8.01", r"8.01 m from the base, beyond the reach of the 4-link robot \(8 m\)")])
+def test_a_goal_position_inside_a_box_or_out_of_reach_is_refused(goal, message, capsys):
+    with pytest.raises(ValueError, match=message):
+        Episode(EpisodeSettings("cluttered", 4, 0, goal=goal, shape="exact"))
+    assert cluttered.main(["--goal", goal, "--out", "unused", "--shape", "exact"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: goal") and err.count("\n") == 1
+
+
+def test_a_goal_position_on_a_box_face_is_accepted():
+    Episode(EpisodeSettings("cluttered", 4, 0, goal="3,0,5", shape="exact"))  # the upper box's back face
+    with pytest.raises(ValueError, match="beyond the reach"):
+        spheres.make_environment(0, RobotSpec(4), "0,0,-8.5")
