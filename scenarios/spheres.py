@@ -5,10 +5,11 @@ centres uniform in x, y in [-4, 4], z in [-1, 6], pairwise at least 1.5 m
 apart; velocity components uniform in [0, 1) m/s, the sign flipping every 2 s.
 The controller observes the sphere centres only (its safety margin grows by the
 radius). The goal is (4, 0, 4), or with ``--goal random`` the end effector of a
-random valid configuration, or with ``--goal X,Y,Z`` that position. An environment is accepted when the goal is at
-least 2 m from every centre and the straight robot at least 0.1 m from every
-sphere (robot-to-centre distance > radius + 0.1); otherwise it is redrawn,
-deterministically: attempt ``i`` uses ``fold_in(PRNGKey(env_seed), i)``.
+random valid configuration, or with ``--goal X,Y,Z`` that position. An
+environment is accepted when the goal is at least 2 m from every centre and the
+straight robot at least 0.1 m from every sphere (robot-to-centre distance >
+radius + 0.1); otherwise it is redrawn, deterministically: attempt ``i`` uses
+``fold_in(PRNGKey(env_seed), i)``.
 Success: the end effector within 0.2 m of the goal in 200 steps.
 
     python -m scenarios.spheres --env-seed 3 --goal random
