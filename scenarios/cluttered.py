@@ -14,7 +14,7 @@ configuration of the robot (arc lengths uniform in their limits, drawn from
 puts the end effector behind them, as the paper's goal is (x >=
 ``RANDOM_GOAL_MIN_X``, z >= ``RANDOM_GOAL_MIN_Z``): other goals in the same world.
 With ``--goal X,Y,Z`` the goal is that position, m (outside the boxes, within the
-robot's length of its base).
+robot's length of its base; ``--goal=-1,2,3`` when X is negative).
 
 Writes recording.rrd and recording.mcap (replay: ``rerun recording.rrd``).
 
@@ -118,8 +118,8 @@ def main(argv: list[str] | None = None) -> int:
                                           "the paper's)")
     parser.add_argument("--goal", default="fixed", metavar="fixed|random|X,Y,Z",
                         help=f"fixed: the paper's {GOAL}; random: the end effector of a random configuration "
-                             "clear of the boxes, behind them (drawn from --env-seed); X,Y,Z: that position, m "
-                             "(default fixed)")
+                             "clear of the boxes, behind them (drawn from --env-seed); X,Y,Z: that position, m, "
+                             "written --goal=-1,2,3 when X is negative (default fixed)")
 
     def settings(args) -> EpisodeSettings:
         options = (("density", args.density),) if args.density is not None else ()

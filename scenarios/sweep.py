@@ -619,7 +619,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     ep.add_argument("--horizon", type=int, help="MPPI horizon (default: the controller's)")
     ep.add_argument("--max-steps", type=int, help="step budget (default: the scenario's)")
     ep.add_argument("--goal", metavar="GOAL", help=f"{', '.join(GOALS)} or a position X,Y,Z in m (spheres and "
-                                                   f"cluttered; default {EpisodeSettings.goal})")
+                                                   "cluttered; --goal=-4,0,4 when X is negative; "
+                                                   f"default {EpisodeSettings.goal})")
     ep.add_argument("--model", help="N-CEDF weights (default: the shipped model)")
     ep.add_argument("--option", type=_option, action="append", default=[], metavar="KEY=VALUE",
                     help="scenario option, repeatable (e.g. custom: obstacles=FILE, an absolute path for Ray)")
