@@ -279,3 +279,8 @@ def test_a_goal_position_on_a_box_face_is_accepted():
     Episode(EpisodeSettings("cluttered", 4, 0, goal="3,0,5", shape="exact"))  # the upper box's back face
     with pytest.raises(ValueError, match="beyond the reach"):
         spheres.make_environment(0, RobotSpec(4), "0,0,-8.5")
+
+
+def test_a_goal_position_with_a_negative_x_on_the_command_line(capsys):
+    assert spheres.main(["--goal=-1,2,9", "--out", "unused", "--shape", "exact"]) == 2  # as --help writes it
+    assert "goal (-1.0, 2.0, 9.0) is 9.27 m from the base" in capsys.readouterr().err
