@@ -31,6 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from ncedf.mppi import MPPIConfig  # noqa: E402
 from ncedf.robot import RobotSpec  # noqa: E402
 from recorder.cli import OneLineParser, exit_with  # noqa: E402
+from scenarios.episode import goal_text  # noqa: E402
 from scenarios.spheres import MAX_STEPS, make_environment  # noqa: E402
 from scenarios.world import World  # noqa: E402
 
@@ -60,7 +61,8 @@ def first_base_hit(world: World, spec: RobotSpec, horizon: float, dt: float) -> 
 def main(argv=None) -> int:
     p = OneLineParser(prog="python bench/sphere_base_hits.py", description=__doc__.split("\n\n")[0])
     p.add_argument("--envs", type=int, default=200, help="environments 0..N-1 (default 200)")
-    p.add_argument("--goal", choices=("fixed", "random"), default="fixed", help="goal kind (default fixed)")
+    p.add_argument("--goal", type=goal_text, default="fixed", metavar="fixed|random|X,Y,Z",
+                   help="goal kind or position, m (--goal=-4,0,4 when X is negative; default fixed)")
     p.add_argument("--dt", type=float, default=0.005, help="time sampling, s (default 0.005)")
     p.add_argument("--runs", help="folder of sphere recordings to compare with")
     args = p.parse_args(argv)

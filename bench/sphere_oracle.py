@@ -51,6 +51,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from ncedf.mppi import MPPIConfig  # noqa: E402
 from ncedf.robot import RobotSpec  # noqa: E402
 from recorder.cli import EXIT_STATUS, OneLineParser, Stopped, exit_with, stop_on_signals  # noqa: E402
+from scenarios.episode import goal_text  # noqa: E402
 from scenarios.oracle import OracleConfig, plan_reach  # noqa: E402
 from scenarios.spheres import TOLERANCE, make_environment  # noqa: E402
 
@@ -89,7 +90,8 @@ def main(argv=None) -> int:
     p = OneLineParser(prog="python bench/sphere_oracle.py", description=__doc__.split("\n\n")[0])
     p.add_argument("--envs", type=int, default=200, help="environments env0 .. env0 + N - 1 (default 200)")
     p.add_argument("--env0", type=int, default=0, help="first environment (default 0)")
-    p.add_argument("--goal", choices=("fixed", "random"), default="fixed", help="goal kind (default fixed)")
+    p.add_argument("--goal", type=goal_text, default="fixed", metavar="fixed|random|X,Y,Z",
+                   help="goal kind or position, m (--goal=-4,0,4 when X is negative; default fixed)")
     p.add_argument("--horizons", default=",".join(map(str, HORIZONS)),
                    help=f"horizons to try, steps (default {','.join(map(str, HORIZONS))})")
     p.add_argument("--starts", type=int, default=OracleConfig.starts,

@@ -120,7 +120,7 @@ class EpisodeSettings:
       samples, horizon: override the preset's rollouts and horizon.
       max_steps: override the scenario's step budget.
       goal: ``fixed``, ``random`` or a position ``"X,Y,Z"``, m (scenarios that draw
-        goals; :func:`goal_position`; kept as the floats' repr).
+        goals; :func:`goal_position`; kept as :func:`goal_text`).
       options: scenario-specific (name, value) text pairs, kept sorted by name.
     """
 
@@ -156,9 +156,7 @@ class EpisodeSettings:
             raise ValueError(f"unknown controller {self.controller!r}; choose one of {', '.join(CONTROLLERS)}")
         for name in ("samples", "horizon", "max_steps"):
             _check_count(name, getattr(self, name))
-        position = goal_position(self.goal)
-        if position is not None:
-            object.__setattr__(self, "goal", ",".join(map(repr, position)))
+        object.__setattr__(self, "goal", goal_text(self.goal))
         try:
             pairs = tuple((str(k), str(v)) for k, v in self.options)
         except (TypeError, ValueError):
@@ -195,6 +193,13 @@ def goal_position(goal: str) -> tuple[float, float, float] | None:
         return option_vector("goal", goal)
     except (ValueError, AttributeError):
         raise ValueError(f"goal must be {', '.join(GOALS)} or a position X,Y,Z in m, got {goal!r}") from None
+
+
+def goal_text(goal: str) -> str:
+    """A goal's canonical text: a kind in ``GOALS`` as it is, a position as its floats' repr
+    ``"X,Y,Z"``; ValueError naming anything else."""
+    position = goal_position(goal)
+    return goal if position is None else ",".join(map(repr, position))
 
 
 def check_reach(position, spec: RobotSpec) -> None:
