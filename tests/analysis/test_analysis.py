@@ -3,8 +3,9 @@
 The folder: tiny dynamic-sphere episodes (16 rollouts, horizon 3; environments 0-4 end in a mix
 of outcomes), four tiny cluttered episodes (one at a sparser cloud, one with a random goal), and
 two tiny networks trained and timed by scenarios.reproduce (Table II: with and without the
-over-estimation loss). The CSV numbers are checked against values computed here from what the episodes returned (EpisodeResult) and from
-the saved weights evaluated again, not from the recordings the scripts read.
+over-estimation loss). The CSV numbers are checked against values computed here from what the
+episodes returned (EpisodeResult) and from the saved weights evaluated again, not from the
+recordings the scripts read.
 """
 
 from __future__ import annotations
