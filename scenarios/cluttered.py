@@ -102,14 +102,15 @@ def build(settings: EpisodeSettings) -> Scene:
     """The cluttered scene for ``settings`` (option ``density``; the paper's goal, a random one or a position)."""
     options = scenario_options(settings, OPTIONS)
     density = option_positive("density", options.get("density", str(DENSITY)))
-    position = goal_position(settings.goal)
-    if position is not None:
-        check_goal(position, RobotSpec(settings.links))
-        return make_scene(settings, make_world(density), position, TOLERANCE, MAX_STEPS)
-    if settings.goal == "random":
-        goal, _, attempts = random_goal(settings.env_seed, RobotSpec(settings.links))
-        return make_scene(settings, make_world(density), goal, TOLERANCE, MAX_STEPS, goal_attempts=attempts)
-    return make_scene(settings, make_world(density), GOAL, TOLERANCE, MAX_STEPS)
+    spec = RobotSpec(settings.links)
+    goal, info = goal_position(settings.goal), {}
+    if goal is not None:
+        check_goal(goal, spec)
+    elif settings.goal == "random":
+        goal, _, info["goal_attempts"] = random_goal(settings.env_seed, spec)
+    else:
+        goal = GOAL
+    return make_scene(settings, make_world(density), goal, TOLERANCE, MAX_STEPS, **info)
 
 
 def main(argv: list[str] | None = None) -> int:
