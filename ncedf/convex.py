@@ -279,7 +279,7 @@ def fit_polytopes(points: np.ndarray, link: float, groups: np.ndarray | None = N
     return Polytopes(lower, upper, normals, offsets, valid, present, moving, centre, radius, ball)
 
 
-def polytope_distance(x: jnp.ndarray, polytopes: Polytopes, t=0.0) -> jnp.ndarray:
+def polytope_distance(x: jnp.ndarray, polytopes: Polytopes, t=0.0, dense: bool | None = None) -> jnp.ndarray:
     """(...,) lower bound of the distance from points x (..., 3) to the nearest polytope,
     each moved by ``t`` times its velocity (t: s, broadcastable with x[..., 0]), m; negative
     inside (minus the depth); +inf without polytopes.
@@ -294,8 +294,19 @@ def polytope_distance(x: jnp.ndarray, polytopes: Polytopes, t=0.0) -> jnp.ndarra
     its ball, or its box and its plane slots up to the last valid one, rounded up to
     ``PLANE_BUCKETS``), since the arithmetic of the capacity is the cost (the
     cluttered scene fills 4 or 5 of the ``MAX_CLUSTERS`` slots: its boxes without
-    planes, its spheres as balls).
+    planes, its spheres as balls). That is the CPU's form; other devices compute
+    every cluster and plane slot at once, with no loop or branch (a GPU runs a
+    loop's steps and branches one after another). ``dense`` chooses the form:
+    None for the device's (``jax.lax.platform_dependent``), True for all at once,
+    False for the loop; the two agree to float rounding.
     """
+    if dense is None:
+        return jax.lax.platform_dependent(x, polytopes, t, cpu=_looped_distance, default=_dense_distance)
+    return (_dense_distance if dense else _looped_distance)(x, polytopes, t)
+
+
+def _looped_distance(x: jnp.ndarray, polytopes: Polytopes, t=0.0) -> jnp.ndarray:
+    """:func:`polytope_distance`, a loop over the clusters that skips what a cluster lacks."""
     p = jax.tree.map(jnp.asarray, polytopes)  # indexed by the loop's cluster index
     t = jnp.asarray(t, x.dtype)
     xs = [x[..., i] for i in range(3)]
@@ -327,26 +338,52 @@ def polytope_distance(x: jnp.ndarray, polytopes: Polytopes, t=0.0) -> jnp.ndarra
     return jax.lax.fori_loop(0, p.present.shape[0], lambda c, n: jax.lax.switch(kinds[c], branches, c, n), nearest)
 
 
+def _dense_distance(x: jnp.ndarray, polytopes: Polytopes, t=0.0) -> jnp.ndarray:
+    """:func:`polytope_distance`, every cluster and plane slot at once (a trailing axis C),
+    elementwise per component and unrolled over the plane slots as in the loop, so XLA fuses it."""
+    p = jax.tree.map(jnp.asarray, polytopes)
+    t = jnp.asarray(t, x.dtype)[..., None]
+    rel = [x[..., None, i] - t * p.velocity[:, i] for i in range(3)]  # 3 x (..., C)
+    q = [jnp.abs(rel[i] - 0.5 * (p.upper[:, i] + p.lower[:, i])) - 0.5 * (p.upper[:, i] - p.lower[:, i])
+         for i in range(3)]
+    d = (jnp.sqrt(sum(jnp.maximum(qi, 0.0) ** 2 for qi in q))
+         + jnp.minimum(jnp.maximum(jnp.maximum(q[0], q[1]), q[2]), 0.0))
+    for k in range(p.valid.shape[1]):
+        s = sum(rel[i] * p.normals[:, k, i] for i in range(3)) - p.offsets[:, k]
+        d = jnp.maximum(d, jnp.where(p.valid[:, k], s, -jnp.inf))
+    ball = jnp.sqrt(sum((rel[i] - p.centre[:, i]) ** 2 for i in range(3))) - p.radius
+    d = jnp.where(p.present, jnp.where(p.ball, ball, d), jnp.inf)
+    return jnp.min(d, axis=-1, initial=jnp.inf)
+
+
 def robot_clearance(arcs: jnp.ndarray, frames: jnp.ndarray, spec: RobotSpec, polytopes: Polytopes,
-                    t=0.0) -> jnp.ndarray:
+                    t=0.0, dense: bool | None = None) -> jnp.ndarray:
     """(B...,) lower bound of the robot body's clearance to the polytopes, each moved by
     ``t`` times its velocity (t: s; B... is the broadcast of the batch shapes of arcs and t), m.
 
-    The states are scored ``CLEARANCE_CHUNK`` at a time (``jax.lax.map``), so that the
-    cover centres and their distances of one pass stay in the CPU's caches.
+    On the CPU the states are scored ``CLEARANCE_CHUNK`` at a time (``jax.lax.map``), so
+    that the cover centres and their distances of one pass stay in its caches, by the
+    loop of :func:`polytope_distance`; other devices score them all at once, by its dense
+    form. ``dense`` chooses as there.
 
     Args:
       arcs: (B..., M, 3) arc lengths, m.  frames: (B..., M + 1, 4, 4) their forward kinematics.
     """
     cover = SphereShape(spec, per_link=COVER_SPHERES)
 
-    def one(state):  # one configuration: (M, 3), (M + 1, 4, 4), () -> ()
+    def one(as_dense, state):  # one configuration: (M, 3), (M + 1, 4, 4), () -> ()
         arc, frame, time = state
         geom = cover.prepare(arc, frame)
-        return jnp.min(polytope_distance(geom.centres, polytopes, time) - geom.radius[:, None])
+        return jnp.min(polytope_distance(geom.centres, polytopes, time, as_dense) - geom.radius[:, None])
+
+    def chunked(states):
+        return jax.lax.map(functools.partial(one, False), states, batch_size=CLEARANCE_CHUNK)
 
     t = jnp.asarray(t, arcs.dtype)
     batch = jnp.broadcast_shapes(arcs.shape[:-2], t.shape)
     states = tuple(jnp.broadcast_to(x, batch + x.shape[x.ndim - core:]).reshape((-1,) + x.shape[x.ndim - core:])
                    for x, core in ((arcs, 2), (frames, 3), (t, 0)))
-    return jax.lax.map(one, states, batch_size=CLEARANCE_CHUNK).reshape(batch)
+    at_once = jax.vmap(functools.partial(one, True))
+    if dense is None:
+        return jax.lax.platform_dependent(states, cpu=chunked, default=at_once).reshape(batch)
+    return (at_once if dense else chunked)(states).reshape(batch)

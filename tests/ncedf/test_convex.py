@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from jitted import held_clearance, polytope_distance, robot_clearance, step_clearance
-from ncedf.convex import (COVER_SPHERES, MAX_CLUSTERS, _fit_group, clusters, fit_polytope, fit_polytopes, fit_sphere,
-                          static_rows)
+from ncedf.convex import (CLEARANCE_CHUNK, COVER_SPHERES, MAX_CLUSTERS, _fit_group, clusters, fit_polytope,
+                          fit_polytopes, fit_sphere, static_rows)
 from ncedf.geometry import robot_signed_distance
 from ncedf.mppi import HOLD_SAMPLES, MPPI, MPPIConfig, init_state, mppi_step
 from ncedf.robot import RobotSpec, forward_kinematics, sample_arc_lengths
@@ -35,12 +35,18 @@ def _box_surface(rng, centre, size, density):
     return np.concatenate(out)
 
 
+#: Both forms of the distance: the device's (the CPU's loop over the clusters here) and all at once
+#: (a GPU's).
+DENSE = pytest.mark.parametrize("dense", [None, True], ids=["device", "dense"])
+
+
 def _box_sdf(x, centre, size):
     q = np.abs(x - np.asarray(centre)) - 0.5 * np.asarray(size)
     return np.linalg.norm(np.maximum(q, 0.0), axis=-1) + np.minimum(q.max(axis=-1), 0.0)
 
 
-def test_a_sparsely_sampled_box_is_closed_exactly():
+@DENSE
+def test_a_sparsely_sampled_box_is_closed_exactly(dense):
     # 4 points per m^2 leave holes wider than the robot; the polytope is still the box.
     rng = np.random.default_rng(0)
     boxes = [((2.5, 0.0, 5.0), (1.0, 4.8, 3.0)), ((5.3, 0.0, 2.0), (2.0, 5.0, 1.0))]
@@ -49,10 +55,12 @@ def test_a_sparsely_sampled_box_is_closed_exactly():
     assert int(np.sum(poly.present)) == 2
     x = rng.uniform((-1.0, -4.0, -1.0), (8.0, 4.0, 8.0), (5000, 3))
     truth = np.min([_box_sdf(x, c, s) for c, s in boxes], axis=0)
-    np.testing.assert_allclose(np.asarray(polytope_distance(jnp.asarray(x, jnp.float32), poly)), truth, atol=1e-5)
+    d = np.asarray(polytope_distance(jnp.asarray(x, jnp.float32), poly, dense=dense))
+    np.testing.assert_allclose(d, truth, atol=1e-5)
 
 
-def test_a_rotated_box_is_closed_by_its_hull_planes():
+@DENSE
+def test_a_rotated_box_is_closed_by_its_hull_planes(dense):
     rng = np.random.default_rng(1)
     rot, _ = np.linalg.qr(rng.normal(size=(3, 3)))
     size = np.array([1.0, 2.0, 0.6])
@@ -63,9 +71,9 @@ def test_a_rotated_box_is_closed_by_its_hull_planes():
     poly = fit_polytopes(local @ rot.T, 1.0)
     x_local = rng.uniform(-2.0, 2.0, (4000, 3))
     truth = _box_sdf(x_local, (0.0, 0.0, 0.0), size)
-    d = np.asarray(polytope_distance(jnp.asarray(x_local @ rot.T, jnp.float32), poly))
+    d = np.asarray(polytope_distance(jnp.asarray(x_local @ rot.T, jnp.float32), poly, dense=dense))
     assert np.all(d <= truth + 1e-5)  # a lower bound outside, minus at least the depth inside
-    inside_points = np.asarray(polytope_distance(jnp.asarray(local @ rot.T, jnp.float32), poly))
+    inside_points = np.asarray(polytope_distance(jnp.asarray(local @ rot.T, jnp.float32), poly, dense=dense))
     assert np.all(inside_points <= 1e-5)
     far = np.abs(truth) > 0.15  # away from the surface the sides agree
     assert np.all((d[far] < 0) == (truth[far] < 0))
@@ -77,7 +85,8 @@ def _sphere_surface(rng, centre, radius, n):
     return (np.asarray(centre) + radius * d / np.linalg.norm(d, axis=1, keepdims=True)).astype(np.float32)
 
 
-def test_a_sampled_sphere_is_closed_as_its_ball_moving_with_it():
+@DENSE
+def test_a_sampled_sphere_is_closed_as_its_ball_moving_with_it(dense):
     # 30 points on a 0.5 m sphere (the cluttered scene's moving spheres): the model is the sphere
     # itself, where the points' bounding box sticks out at its corners and their hull cuts under it.
     rng = np.random.default_rng(5)
@@ -88,9 +97,10 @@ def test_a_sampled_sphere_is_closed_as_its_ball_moving_with_it():
     x = rng.uniform(-3.0, 3.0, (2000, 3)).astype(np.float32) + centre.astype(np.float32)
     t = rng.uniform(0.0, 2.0, 2000).astype(np.float32)
     truth = np.linalg.norm(x - t[:, None] * v - centre, axis=1) - radius
-    np.testing.assert_allclose(np.asarray(polytope_distance(jnp.asarray(x), poly, jnp.asarray(t))), truth, atol=2e-5)
+    d = np.asarray(polytope_distance(jnp.asarray(x), poly, jnp.asarray(t), dense=dense))
+    np.testing.assert_allclose(d, truth, atol=2e-5)
     box = fit_polytopes(points, 1.0)._replace(ball=jnp.zeros(MAX_CLUSTERS, bool))  # the same points as a polytope
-    d_box = np.asarray(polytope_distance(jnp.asarray(x), box))
+    d_box = np.asarray(polytope_distance(jnp.asarray(x), box, dense=dense))
     truth_now = np.linalg.norm(x - centre, axis=1) - radius
     assert np.max(d_box - truth_now) > 0.02 and np.min(d_box - truth_now) < -0.1  # both wrong ways, by far
 
@@ -188,16 +198,18 @@ def test_clusters_whose_bounds_lie_within_the_link_merge_only_within_a_group():
     assert len(np.unique(farther[:3])) == len(np.unique(farther[3:])) == 1 and farther[0] != farther[3]
 
 
-def test_capacity_keeps_the_largest_clusters_and_no_points_no_obstacle():
+@DENSE
+def test_capacity_keeps_the_largest_clusters_and_no_points_no_obstacle(dense):
     rng = np.random.default_rng(3)
     small = [rng.normal(scale=0.05, size=(5, 3)) + (3.0 * i, 0.0, 0.0) for i in range(MAX_CLUSTERS)]
     big = _box_surface(rng, (0.0, 10.0, 0.0), (1.0, 1.0, 1.0), 30.0)
     poly = fit_polytopes(np.concatenate(small + [big]), 1.0)
     assert bool(np.all(poly.present))
-    assert float(polytope_distance(jnp.asarray([[0.0, 10.0, 0.0]], jnp.float32), poly)[0]) == pytest.approx(-0.5)
+    inside = polytope_distance(jnp.asarray([[0.0, 10.0, 0.0]], jnp.float32), poly, dense=dense)
+    assert float(inside[0]) == pytest.approx(-0.5)
     empty = fit_polytopes(np.zeros((0, 3)), 1.0)
     assert not bool(np.any(empty.present))
-    assert np.isinf(float(polytope_distance(jnp.zeros((1, 3)), empty)[0]))
+    assert np.isinf(float(polytope_distance(jnp.zeros((1, 3)), empty, dense=dense)[0]))
 
 
 def test_static_rows_are_the_unmoved_real_ones():
@@ -209,7 +221,8 @@ def test_static_rows_are_the_unmoved_real_ones():
                                   [True, False, False, False])
 
 
-def test_robot_clearance_is_a_tight_lower_bound_of_the_body_clearance():
+@DENSE
+def test_robot_clearance_is_a_tight_lower_bound_of_the_body_clearance(dense):
     spec = RobotSpec(2)
     centre, size = (1.2, 0.3, 2.0), (0.8, 0.8, 0.8)
     g = np.linspace(-0.5, 0.5, 41)
@@ -224,13 +237,49 @@ def test_robot_clearance_is_a_tight_lower_bound_of_the_body_clearance():
     grid = jnp.asarray(np.concatenate(faces), jnp.float32)  # 2 cm spacing on the faces
     poly = fit_polytopes(np.asarray(grid)[::7], 1.0)
     arcs = sample_arc_lengths(jax.random.PRNGKey(0), spec, (64, spec.n_links))
-    bound = np.asarray(robot_clearance(arcs, forward_kinematics(arcs, spec), spec, poly))
+    bound = np.asarray(robot_clearance(arcs, forward_kinematics(arcs, spec), spec, poly, dense=dense))
     truth = np.asarray(jax.vmap(lambda arc: jnp.min(robot_signed_distance(grid, arc, spec)))(arcs))
     clear = truth > 0.02  # configurations off the box (inside it the grid misses the depth)
     assert clear.sum() > 20
     assert np.all(bound[clear] <= truth[clear] + 1e-5)
     slack = float(np.max(sphere_cover_radius(jnp.asarray(3.0), spec, COVER_SPHERES))) - spec.radius
     assert np.all(bound[clear] >= truth[clear] - slack - 0.02)
+
+
+def test_the_clearance_scores_states_alike_in_passes_and_all_at_once():
+    # More states than one pass holds (two passes and a remainder), against boxes, a rotated box's
+    # planes and a moving ball, each state at its own time.
+    rng = np.random.default_rng(8)
+    spec = RobotSpec(3)
+    corners = 0.5 * np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)])
+    rot, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    rotated = (np.concatenate([_box_surface(rng, (0, 0, 0), (1, 1, 1), 20.0), corners]) @ rot.T) + (-2.0, 2.0, 2.0)
+    ball = _sphere_surface(rng, (0.0, -3.0, 2.5), 0.5, 30)
+    points = np.concatenate([_box_surface(rng, (3.0, 0.0, 3.0), (1.0, 2.0, 1.0), 4.0), rotated, ball])
+    velocity = np.zeros_like(points)
+    velocity[-len(ball):] = (0.0, 0.5, -0.2)
+    poly = fit_polytopes(points, 1.0, velocity=velocity)
+    assert int(poly.ball.sum()) == 1 and int(poly.valid.sum()) >= 6
+    n = 2 * CLEARANCE_CHUNK + 77
+    arcs = sample_arc_lengths(jax.random.PRNGKey(1), spec, (n, spec.n_links))
+    frames = forward_kinematics(arcs, spec)
+    t = jnp.asarray(rng.uniform(0.0, 1.0, n), jnp.float32)
+    passes = np.asarray(robot_clearance(arcs, frames, spec, poly, t, dense=False))
+    at_once = np.asarray(robot_clearance(arcs, frames, spec, poly, t, dense=True))
+    assert np.ptp(passes) > 1.0
+    np.testing.assert_allclose(at_once, passes, atol=1e-5)
+
+
+@pytest.mark.parametrize("platform", ["cpu", "cuda"])
+def test_only_the_cpu_scores_the_clearance_in_a_loop(platform):
+    # A GPU runs a loop's steps and a branch's predicate one after another; lowered for one, the
+    # clearance has neither.
+    spec = RobotSpec(2)
+    poly = fit_polytopes(_box_surface(np.random.default_rng(9), (2.0, 0.0, 3.0), (1.0, 1.0, 1.0), 4.0), 1.0)
+    arcs = jnp.full((8, spec.n_links, 3), spec.length)
+    traced = robot_clearance.trace(arcs, forward_kinematics(arcs, spec), spec, poly, 0.1)
+    text = traced.lower(lowering_platforms=(platform,)).as_text()
+    assert ("stablehlo.while" in text) == (platform == "cpu")
 
 
 # A one-link robot bends through a slab that is observed only at its eight corners (dt = 1 s).
@@ -284,7 +333,8 @@ def test_the_controller_clusters_moving_and_static_points_apart():
     np.testing.assert_allclose(speeds, [0.0, 0.05 / CONFIG.dt], atol=1e-6)
 
 
-def test_a_moving_polytope_is_scored_where_it_will_be():
+@DENSE
+def test_a_moving_polytope_is_scored_where_it_will_be(dense):
     rng = np.random.default_rng(4)
     corners = 0.5 * np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)])
     points = np.concatenate([_box_surface(rng, (0.0, 0.0, 0.0), (1.0, 1.0, 1.0), 30.0), corners])
@@ -293,9 +343,9 @@ def test_a_moving_polytope_is_scored_where_it_will_be():
     at_rest = fit_polytopes(points, 1.0)
     x = rng.uniform(-3.0, 3.0, (500, 3)).astype(np.float32)
     t = rng.uniform(0.0, 2.0, 500).astype(np.float32)
-    np.testing.assert_allclose(np.asarray(polytope_distance(jnp.asarray(x), moving, jnp.asarray(t))),
+    np.testing.assert_allclose(np.asarray(polytope_distance(jnp.asarray(x), moving, jnp.asarray(t), dense=dense)),
                                _box_sdf(x - t[:, None] * v, (0.0, 0.0, 0.0), (1.0, 1.0, 1.0)), atol=1e-5)
-    np.testing.assert_allclose(np.asarray(polytope_distance(jnp.asarray(x), at_rest, jnp.asarray(t))),
+    np.testing.assert_allclose(np.asarray(polytope_distance(jnp.asarray(x), at_rest, jnp.asarray(t), dense=dense)),
                                _box_sdf(x, (0.0, 0.0, 0.0), (1.0, 1.0, 1.0)), atol=1e-5)
 
 
