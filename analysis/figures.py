@@ -34,12 +34,14 @@ plt.rcParams.update({"font.size": 8, "axes.titlesize": 8, "axes.labelsize": 8, "
 
 
 def _pick(runs: pd.DataFrame, prefer_shape: str = "ncedf") -> pd.Series | None:
-    """A representative run: the preferred shape, full (not quick) runs first, a success first."""
+    """A representative run: the preferred shape, full (not quick) runs first, then the paper's goal, a success
+    first."""
     if runs.empty:
         return None
     key = pd.DataFrame({"quick": runs["quick"].astype(bool), "shape": runs["shape"] != prefer_shape,
-                        "fail": runs["outcome"] != "success", "path": runs["path"]})
-    return runs.loc[key.sort_values(["quick", "shape", "fail", "path"]).index[0]]
+                        "goal": runs["goal_kind"] != "fixed", "fail": runs["outcome"] != "success",
+                        "path": runs["path"]})
+    return runs.loc[key.sort_values(["quick", "shape", "goal", "fail", "path"]).index[0]]
 
 
 # ---------------------------------------------------------------- Fig. 3
@@ -259,7 +261,7 @@ def success_rates(rec: Recordings):
         rows.append({"shape": shape, "controller": controller, "goal": goal, "quick": quick, "episodes": n,
                      "successes": k,
                      "success": k / n, "low": low, "high": high,
-                     "paper_success": paper.TABLE3.get(shape, (np.nan,))[0]})
+                     "paper_success": paper.table3_reference(shape, goal)[0]})
     df = pd.DataFrame(rows)
     fig, ax = plt.subplots(figsize=(COLUMN_IN, 1.2 + 0.2 * len(df)), layout="constrained")
     y = np.arange(len(df))

@@ -5,6 +5,8 @@ From the paper (../shared/paper/n-cedf-paper.tex) as transcribed in the project'
 
 from __future__ import annotations
 
+import math
+
 HARDWARE = "NVIDIA RTX 4090 (paper)"
 
 #: Table I: (layers, width) -> (inference ms, MPPI step s, MAE m, RMSE m, MOE m).
@@ -24,6 +26,17 @@ TABLE3 = {
     "ncedf": (0.986, 0.006, 0.008, 0.006), "spheres": (0.872, 0.005, 0.123, 0.005),
     "pointcloud:1000": (0.942, 0.052, 0.006, 0.062), "pointcloud:5000": (0.984, 0.008, 0.008, 0.284),
 }
+#: Table III's goal kinds its figures are set beside: its environments are random and its text does not say
+#: whether the goal was (the release fixes it); a goal position ``X,Y,Z`` is the user's own.
+TABLE3_GOALS = ("fixed", "random")
+
+
+def table3_reference(shape: str, goal: str) -> tuple[float, float, float, float]:
+    """Table III's (success, collision, stuck, MPPI step s) for a representation and goal kind; NaN where the
+    paper has no figure."""
+    return TABLE3.get(shape, (math.nan,) * 4) if goal in TABLE3_GOALS else (math.nan,) * 4
+
+
 #: Table IV: links -> (MPPI step s mean, std, reach step).
 TABLE4 = {4: (0.0331, 0.0005, 158), 5: (0.0419, 0.0008, 82), 7: (0.0607, 0.0006, 43)}
 #: Table IV's scene: observed points per square metre of box face.

@@ -62,11 +62,16 @@ RANDOM_GOAL_MIN_X = 3.5
 RANDOM_GOAL_MIN_Z = 0.5
 
 
+def make_boxes() -> tuple[Box, ...]:
+    """The static boxes of ``BOXES``."""
+    return tuple(Box(centre, size) for centre, size in BOXES)
+
+
 def make_world(density: float = DENSITY) -> World:
     """The paper's cluttered world, its box faces observed at ``density`` points per m^2."""
     return World(
         spheres=tuple(MovingSphere(centre, SPHERE_RADIUS, velocity, HALF_PERIOD) for centre, velocity in SPHERES),
-        boxes=tuple(Box(centre, size) for centre, size in BOXES),
+        boxes=make_boxes(),
         density=density,
         sphere_points=SPHERE_POINTS,
         observe="surface",
@@ -77,7 +82,7 @@ def random_goal(env_seed: int, spec: RobotSpec) -> tuple[np.ndarray, np.ndarray,
     """The ``--goal random`` goal of ``env_seed`` (module docstring): (end effector position (3,) m,
     its configuration's arc lengths (M, 3) m, attempts used). Attempt ``i`` draws from
     ``fold_in(PRNGKey(env_seed), i)``."""
-    boxes = World(boxes=tuple(Box(centre, size) for centre, size in BOXES))
+    boxes = World(boxes=make_boxes())
     base = jax.random.PRNGKey(env_seed)
     for attempt in range(DRAW_ATTEMPTS):
         arc = np.asarray(sample_arc_lengths(jax.random.fold_in(base, attempt), spec, (spec.n_links,)), np.float32)
@@ -90,11 +95,11 @@ def random_goal(env_seed: int, spec: RobotSpec) -> tuple[np.ndarray, np.ndarray,
 
 def check_goal(position, spec: RobotSpec) -> None:
     """ValueError when a goal position (3,) m lies inside a box or beyond the robot's reach."""
-    for centre, size in BOXES:
-        inside, _ = box_sdf(jnp.asarray(position), jnp.asarray(centre), 0.5 * jnp.asarray(size))
+    for box in make_boxes():
+        inside, _ = box_sdf(jnp.asarray(position), jnp.asarray(box.centre), 0.5 * jnp.asarray(box.size))
         if float(inside) < 0:
-            raise ValueError(f"goal {tuple(float(v) for v in position)} lies inside the box at {centre} "
-                             f"(size {size})")
+            raise ValueError(f"goal {tuple(float(v) for v in position)} lies inside the box at {box.centre} "
+                             f"(size {box.size})")
     check_reach(position, spec)
 
 

@@ -1,7 +1,7 @@
 """analysis/make_tables.py and make_figures.py on a small folder of real recordings.
 
 The folder: tiny dynamic-sphere episodes (16 rollouts, horizon 3; environments 0-4 end in a mix
-of outcomes), four tiny cluttered episodes (one at a sparser cloud, one with another goal), and
+of outcomes; one more at a goal position), four tiny cluttered episodes (one at a sparser cloud, one with another goal), and
 two tiny networks trained and timed by scenarios.reproduce (Table II: with and without the
 over-estimation loss). The CSV numbers are checked against values computed here from what the
 episodes returned (EpisodeResult) and from the saved weights evaluated again, not from the
@@ -34,14 +34,16 @@ Z = 1.959963984540054
 SPHERE_ENVS = 5
 #: A cluttered goal other than the paper's (a position: no random draw to compile).
 OTHER_GOAL = "4.5,1.0,3.0"
+#: A goal position among the spheres.
+SPHERE_GOAL = "-4.0,0.0,4.0"
 TINY_BUDGET = dataclasses.replace(reproduce.QUICK, epochs=2, configs=4, grid=6, surface=20, val_configs=4,
                                   val_points=64, val_surface=8, timing_repeats=3, timing_samples=16, timing_horizon=3,
                                   timing_shapes=("spheres",), timing_links=(4, 5), timing_points=(250,))
 
 
-def sphere_settings(env: int) -> EpisodeSettings:
+def sphere_settings(env: int, goal: str = "fixed") -> EpisodeSettings:
     return EpisodeSettings("spheres", 4, seed=0, env_seed=env, shape="spheres", controller="paper", samples=16,
-                           horizon=3, max_steps=25)
+                           horizon=3, max_steps=25, goal=goal)
 
 
 def cluttered_settings(seed: int, density: str | None = None, goal: str = "fixed") -> EpisodeSettings:
@@ -67,8 +69,9 @@ def folder(tmp_path_factory, cache):
     """Recordings and what their runs returned: (folder, {stem: EpisodeResult}, datasets)."""
     runs = tmp_path_factory.mktemp("runs")
     results = {}
-    for settings in [sphere_settings(e) for e in range(SPHERE_ENVS)] + [cluttered_settings(s) for s in (0, 1)] + [
-            cluttered_settings(0, density="2"), cluttered_settings(0, goal=OTHER_GOAL)]:
+    for settings in [sphere_settings(e) for e in range(SPHERE_ENVS)] + [sphere_settings(0, SPHERE_GOAL)] + [
+            cluttered_settings(s) for s in (0, 1)] + [cluttered_settings(0, density="2"),
+                                                      cluttered_settings(0, goal=OTHER_GOAL)]:
         sub = runs / settings.scenario
         sub.mkdir(exist_ok=True)
         name = episode_name(settings)
@@ -122,11 +125,13 @@ def pooled(results) -> tuple[float, float]:
 def test_table3_rates_and_times_match_the_episodes(folder, tables):
     _, results, _ = folder
     out, _ = tables
-    row = pd.read_csv(out / "table3.csv").set_index("shape").loc["spheres"]
-    ours = [r for s, r in results.values() if s.scenario == "spheres"]
+    df = pd.read_csv(out / "table3.csv")
+    assert sorted(df["goal"]) == sorted(["fixed", SPHERE_GOAL])  # other goals get rows of their own
+    row = df.set_index("goal").loc["fixed"]
+    ours = [r for s, r in results.values() if s.scenario == "spheres" and s.goal == "fixed"]
     outcomes = [r.outcome for r in ours]
     assert len(set(outcomes)) > 1, "the fixture should give a mix of outcomes"
-    assert row["episodes"] == SPHERE_ENVS and row["goal"] == "fixed"  # random-goal episodes get rows of their own
+    assert row["episodes"] == SPHERE_ENVS and row["shape"] == "spheres"
     for name in ("success", "collision", "stuck"):
         k = outcomes.count(name)
         assert row[f"n_{name}"] == k
@@ -139,6 +144,10 @@ def test_table3_rates_and_times_match_the_episodes(folder, tables):
     assert row["mppi_step_s_std"] == pytest.approx(std, rel=1e-3)
     assert row["mppi_steps"] == sum(r.steps for r in ours)
     assert row["paper_success"] == 0.872 and row["controller"] == "paper" and row["samples"] == 16
+    other = df.set_index("goal").loc[SPHERE_GOAL]
+    at_goal = [r for s, r in results.values() if s.scenario == "spheres" and s.goal == SPHERE_GOAL]
+    assert other["episodes"] == 1 and other[f"n_{at_goal[0].outcome}"] == 1
+    assert math.isnan(other["paper_success"])  # the paper's figures are for its own goals
 
 
 def test_table4_matches_the_episodes(folder, tables):
@@ -196,7 +205,7 @@ def test_corrupt_and_unclosed_recordings_are_listed_and_left_out(folder, tmp_pat
     done = script("make_tables.py", copy, "--out", tmp_path / "t")
     assert done.returncode == 0, done.stderr
     assert "garbage.mcap" in done.stderr and first.name in done.stderr and "left out 2" in done.stderr
-    assert pd.read_csv(tmp_path / "t" / "table3.csv").set_index("shape").loc["spheres", "episodes"] == SPHERE_ENVS - 1
+    assert pd.read_csv(tmp_path / "t" / "table3.csv")["episodes"].sum() == SPHERE_ENVS  # of SPHERE_ENVS + 1
 
 
 def test_figures_and_their_data(folder, tmp_path):
@@ -215,11 +224,14 @@ def test_figures_and_their_data(folder, tmp_path):
     fig4 = pd.read_csv(tmp_path / "fig4_sphere_distances.csv")
     stem = Path(fig4["run"].iloc[0]).stem
     settings, result = results[stem]
+    assert settings.goal == "fixed"  # the paper's goal first
     assert fig4["true_min_distance"].min() == pytest.approx(result.min_true_distance, abs=1e-6)
     assert len(fig4) == result.steps + 1 or result.outcome == "collision"
-    rates = pd.read_csv(tmp_path / "success_rates.csv").iloc[0]
-    spheres = [r for s, r in results.values() if s.scenario == "spheres"]
-    assert rates["successes"] == sum(r.outcome == "success" for r in spheres)
+    rates = pd.read_csv(tmp_path / "success_rates.csv").set_index("goal")
+    for goal in ("fixed", SPHERE_GOAL):
+        spheres = [r for s, r in results.values() if s.scenario == "spheres" and s.goal == goal]
+        assert rates.loc[goal, "successes"] == sum(r.outcome == "success" for r in spheres)
+    assert rates.loc["fixed", "paper_success"] == 0.872 and math.isnan(rates.loc[SPHERE_GOAL, "paper_success"])
     # Fig. 3: the exact distance is zero on the link surface; the slice passes through the backbone
     fig3 = pd.read_csv(tmp_path / "fig3_ncedf_slices.csv")
     assert fig3["exact"].min() < 0.02
