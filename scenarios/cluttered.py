@@ -25,6 +25,8 @@ density=16``). The paper's 4 leaves holes up to 0.8 m across in the cloud.
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -33,7 +35,7 @@ from ncedf.robot import RobotSpec, end_effector_pose, sample_arc_lengths
 from scenarios.cli import base_settings, make_parser, run_cli
 from scenarios.episode import (DRAW_ATTEMPTS, EpisodeSettings, Scene, check_reach, goal_position, make_scene,
                                option_positive, scenario_options)
-from scenarios.world import Box, MovingSphere, World, box_sdf, true_min_distance
+from scenarios.world import Box, MovingSphere, World, box_sdf, true_distances_batch
 
 #: Static boxes: (centre, full edge lengths), m.
 BOXES = (
@@ -60,6 +62,8 @@ RANDOM_GOAL_CLEARANCE = 0.3
 #: ... and the end effector's least x and z, m (behind the boxes, above the lower one).
 RANDOM_GOAL_MIN_X = 3.5
 RANDOM_GOAL_MIN_Z = 0.5
+#: ``--goal random``'s attempts drawn at once (a divisor of ``DRAW_ATTEMPTS``).
+GOAL_DRAWS = 250
 
 
 def make_boxes() -> tuple[Box, ...]:
@@ -84,13 +88,28 @@ def random_goal(env_seed: int, spec: RobotSpec) -> tuple[np.ndarray, np.ndarray,
     ``fold_in(PRNGKey(env_seed), i)``."""
     boxes = World(boxes=make_boxes())
     base = jax.random.PRNGKey(env_seed)
-    for attempt in range(DRAW_ATTEMPTS):
-        arc = np.asarray(sample_arc_lengths(jax.random.fold_in(base, attempt), spec, (spec.n_links,)), np.float32)
-        tip = np.asarray(end_effector_pose(arc, spec)[:3, 3], np.float64)
-        if (tip[0] >= RANDOM_GOAL_MIN_X and tip[2] >= RANDOM_GOAL_MIN_Z
-                and true_min_distance(boxes, spec, arc, 0.0) >= RANDOM_GOAL_CLEARANCE):
-            return tip, arc, attempt + 1
+    for start in range(0, DRAW_ATTEMPTS, GOAL_DRAWS):
+        arcs, tips = (np.asarray(x) for x in _goal_draws(base, start, spec))
+        tips = tips.astype(np.float64)
+        behind = np.flatnonzero((tips[:, 0] >= RANDOM_GOAL_MIN_X) & (tips[:, 2] >= RANDOM_GOAL_MIN_Z))
+        if len(behind):
+            clear = true_distances_batch(boxes, spec, arcs[behind], np.zeros(len(behind))).min(axis=1)
+            found = behind[clear >= RANDOM_GOAL_CLEARANCE]
+            if len(found):  # drawn again alone: vmapped, the draw and the kinematics round differently
+                attempt = start + int(found[0])
+                arc = np.asarray(sample_arc_lengths(jax.random.fold_in(base, attempt), spec, (spec.n_links,)),
+                                 np.float32)
+                return np.asarray(end_effector_pose(arc, spec)[:3, 3], np.float64), arc, attempt + 1
     raise ValueError(f"no random goal for env_seed {env_seed} in {DRAW_ATTEMPTS} attempts")
+
+
+@functools.partial(jax.jit, static_argnums=2)
+def _goal_draws(base, start, spec: RobotSpec) -> tuple[jnp.ndarray, jnp.ndarray]:
+    """Attempts ``start`` .. ``start + GOAL_DRAWS - 1`` of :func:`random_goal`: their states (GOAL_DRAWS, M, 3) m
+    and end-effector positions (GOAL_DRAWS, 3) m."""
+    keys = jax.vmap(lambda i: jax.random.fold_in(base, i))(start + jnp.arange(GOAL_DRAWS))
+    arcs = jax.vmap(lambda k: sample_arc_lengths(k, spec, (spec.n_links,)))(keys)
+    return arcs, end_effector_pose(arcs, spec)[:, :3, 3]
 
 
 def check_goal(position, spec: RobotSpec) -> None:
