@@ -10,7 +10,8 @@ some MPPIConfig fields changed (``VARIANTS``): ``ours`` with one of its changes
 turned off (``ours-X``) or a candidate it leaves out turned on (``ours+X``:
 low-pass noise, predicted obstacle motion, the surface model of the cloud with
 and without a larger check margin, the stall escape, the per-state broad phase,
-the spheres' racing settings in every scenario: ``ours+race``),
+the spheres' racing settings in every scenario: ``ours+race``; a route round
+the static obstacles after 30 steps without progress: ``ours+route``),
 ``release`` with ours's sampling,
 and ``paper`` at ``ours``'s rollouts and horizon (the reference of the solver
 time). Every variant runs the same
@@ -413,6 +414,7 @@ VARIANTS: dict[str, tuple[str, dict]] = {
     "ours-weights": ("ours", {"w_coll": 1.1, "w_coll_terminal": 1.1}),
     "ours+hold": ("ours", {"hold_time": 1.0}),
     "ours-follow": ("ours", {"follow_executed": False}),
+    "ours+route": ("ours", {"route_after": 30}),
     "paper": ("paper", {}),
 }
 #: z for a 95% interval.

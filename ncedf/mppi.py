@@ -111,6 +111,19 @@ into the held state makes it costly, so the robot does not end its plan, or
 wait, in the path of an obstacle that the horizon sees only approaching, and it
 dodges behind the obstacle rather than ahead of it.
 
+Route (``route_after`` > 0, with ``convex_link``): MPPI is local, and where
+the way to a position goal first leads away from it (a goal right behind a
+box) it stalls. When the steps without progress (the stall escape's counter,
+kept at every step) exceed ``route_after``, :meth:`MPPI.step` plans a route
+from the current state round the static polytopes (``ncedf.route``: a
+roadmap over arc lengths; the moving clusters are left out) and executes it:
+each step moves to the farthest route state within one step's bound (or
+towards the next, at the bound), if that move passes the safety check
+(:func:`step_clearance`, which sees the moving polytopes); else it holds if
+holding passes, else it takes MPPI's own checked action. MPPI keeps planning
+underneath and takes over at the route's end. At most ``ROUTE_TRIES`` routes
+per episode.
+
 Moving obstacles (``predict_motion``): the controller keeps the previous
 cloud; a point's velocity is its displacement since the previous step over dt
 (clouds whose row ``i`` is the same physical point at every step, as the
@@ -143,6 +156,7 @@ from ncedf.cloud import fill_weights, interpolate
 from ncedf.convex import fit_polytopes, robot_clearance, static_rows
 from ncedf.precision import MATMUL
 from ncedf.robot import RobotSpec, forward_kinematics, validate_state
+from ncedf.route import RouteConfig, plan_route
 from ncedf.shapes import Shape
 
 #: Ways to sample zero-sum control rates (``MPPIConfig.sampling``).
@@ -158,6 +172,12 @@ NOMINAL_SLACK = 2.0
 HOLD_SAMPLES = 4
 #: Scales of the MPPI action among the safety check's candidates (before "no motion").
 CHECK_SCALES = (0.5, 0.25)
+#: Route states :class:`MPPIState` holds (a longer route is thinned evenly).
+ROUTE_CAPACITY = 1024
+#: Routes planned per episode at most.
+ROUTE_TRIES = 3
+#: Folded into the state's key for a route's samples.
+ROUTE_SALT = 0x726F7574
 
 
 @dataclasses.dataclass(frozen=True)
@@ -227,6 +247,10 @@ class MPPIConfig:
       follow_executed: when the safety check executes a fallback, warm-start
         the next step from the fallback's controls instead of the refused plan
         (module docstring; needs ``safety_check``).
+      route_after: 0 = off; else the steps without progress after which
+        :meth:`MPPI.step` plans a route round the static polytopes and executes
+        it (module docstring; needs ``convex_link``).
+      route: the route planner's settings (``ncedf.route.RouteConfig``).
     """
 
     samples: int = 800
@@ -272,6 +296,8 @@ class MPPIConfig:
     hold_time: float = 0.0
     sweep_first: bool = False
     follow_executed: bool = False
+    route_after: int = 0
+    route: RouteConfig = RouteConfig()
 
     def __post_init__(self):
         def num(name):
@@ -312,6 +338,14 @@ class MPPIConfig:
             raise ValueError(f"MPPIConfig.stall_ess must be in (0, 1], got {self.stall_ess}")
         if num("stall_progress") <= 0:
             raise ValueError(f"MPPIConfig.stall_progress must be > 0, got {self.stall_progress}")
+        if isinstance(self.route_after, bool) or not isinstance(self.route_after, (int, np.integer)):
+            raise ValueError(f"MPPIConfig.route_after must be an integer, got {self.route_after!r}")
+        if self.route_after < 0:
+            raise ValueError(f"MPPIConfig.route_after must be >= 0, got {self.route_after}")
+        if self.route_after and not self.convex_link:
+            raise ValueError("MPPIConfig.route_after needs convex_link (the route avoids the polytopes)")
+        if not isinstance(self.route, RouteConfig):
+            raise ValueError(f"MPPIConfig.route must be a RouteConfig, got {type(self.route).__name__}")
         if self.stall_steps and self.target_ess is None:
             raise ValueError("MPPIConfig.stall_steps needs target_ess (the stall escape changes the ESS target)")
         if self.hold_time and not self.convex_link:
@@ -334,8 +368,10 @@ class MPPIState(NamedTuple):
     """Controller state (a pytree): nominal controls (H, M, 3) m/s (with ``update_unclipped``
     the unbounded plan, within +-NOMINAL_SLACK * control_bound), a PRNG key, the
     previous step's cloud (max_points, 3) m with its mask (max_points,) (all False at first),
-    the smallest goal distance of the current state so far (scalar, +inf at first) and the
-    steps since it last fell by ``stall_progress`` (scalar int32)."""
+    the smallest goal distance of the current state so far (scalar, +inf at first), the
+    steps since it last fell by ``stall_progress`` (scalar int32), and a route: its states
+    (ROUTE_CAPACITY, M, 3) m, the index of the last one reached and their count (scalar
+    int32; no route: 0) and the routes planned so far (scalar int32)."""
 
     nominal: jnp.ndarray
     key: jnp.ndarray
@@ -343,6 +379,10 @@ class MPPIState(NamedTuple):
     previous_mask: jnp.ndarray
     best_goal: jnp.ndarray
     stalled: jnp.ndarray
+    route: jnp.ndarray
+    route_at: jnp.ndarray
+    route_end: jnp.ndarray
+    routes: jnp.ndarray
 
 
 class MPPIInfo(NamedTuple):
@@ -528,9 +568,12 @@ def limit_to_state_bounds(arc: jnp.ndarray, u: jnp.ndarray, dt: float, spec: Rob
 def init_state(spec: RobotSpec, config: MPPIConfig, key) -> MPPIState:
     """Zero nominal controls (paper: the initial reference is zero), the key, no previous cloud,
     no goal distance yet."""
+    zero = jnp.asarray(0, jnp.int32)
     return MPPIState(jnp.zeros((config.horizon, spec.n_links, 3), jnp.float32), jnp.asarray(key),
                      jnp.zeros((config.max_points, 3), jnp.float32), jnp.zeros(config.max_points, bool),
-                     jnp.asarray(jnp.inf, jnp.float32), jnp.asarray(0, jnp.int32))
+                     jnp.asarray(jnp.inf, jnp.float32), zero,
+                     jnp.zeros((ROUTE_CAPACITY if config.route_after else 1, spec.n_links, 3), jnp.float32), zero,
+                     zero, zero)
 
 
 def rollout_min_distances(config: MPPIConfig, shape, arcs, points, mask, frames=None):
@@ -705,7 +748,12 @@ def mppi_step(spec: RobotSpec, config: MPPIConfig, shape, state: MPPIState, arc,
         action_clearance=clearance,
         action_choice=choice,
     )
-    return action, MPPIState(next_nominal, key, observed, observed_mask, best_goal, stalled), info
+    return action, state._replace(nominal=next_nominal, key=key, previous=observed, previous_mask=observed_mask,
+                                  best_goal=best_goal, stalled=stalled), info
+
+
+#: The safety check of a route's moves (jitted apart from ``mppi_step``: compiled only when a route runs).
+_check_moves = jax.jit(step_clearance, static_argnums=0, static_argnames="shared")
 
 
 class MPPI:
@@ -780,6 +828,45 @@ class MPPI:
         velocity = np.asarray(cloud_velocity(points, mask, previous, previous_mask, self.config.dt))
         return fit_polytopes(points[mask], self.config.convex_link, static[mask], velocity[mask], bounds=(True,))
 
+    def follow_route(self, state: MPPIState, arc, goal, points, mask, polytopes, action):
+        """The action and state after MPPI's step (module docstring, "Route"): a route's next move
+        when one is being followed or the robot has stalled for more than ``route_after`` steps,
+        else MPPI's ``action``."""
+        c = self.config
+        at, end = int(state.route_at), int(state.route_end)
+        if at >= end - 1:  # no route, or its end reached
+            if int(state.stalled) <= c.route_after or int(state.routes) >= ROUTE_TRIES:
+                return action, state
+            static = polytopes._replace(present=polytopes.present & ~np.any(polytopes.velocity != 0, axis=-1))
+            route = plan_route(self.spec, static, np.asarray(arc), np.asarray(goal),
+                               jax.random.fold_in(state.key, ROUTE_SALT), c.route)
+            state = state._replace(routes=state.routes + 1, stalled=jnp.asarray(0, jnp.int32),
+                                   best_goal=jnp.asarray(jnp.inf, jnp.float32))
+            if route is None:
+                return action, state
+            keep = np.unique(np.linspace(0, len(route) - 1, ROUTE_CAPACITY).round().astype(int))
+            states = np.zeros((ROUTE_CAPACITY,) + route.shape[1:], np.float32)
+            states[:len(keep)] = route[keep]
+            state = state._replace(route=jnp.asarray(states), route_at=jnp.asarray(0, jnp.int32),
+                                   route_end=jnp.asarray(len(keep), jnp.int32))
+            at, end = 0, len(keep)
+        route, here = np.asarray(state.route[:end]), np.asarray(arc)
+        bound = c.control_bound * c.dt
+        reached = at
+        while reached + 1 < end and np.max(np.abs(route[reached + 1] - here)) <= bound:
+            reached += 1
+        u = (route[max(reached, at + 1)] - here) / c.dt
+        u = u - u.mean(axis=-1, keepdims=True)  # zero-sum per link, as every state's chambers
+        u = u * min(1.0, c.control_bound / max(float(np.max(np.abs(u))), 1e-12))
+        moves = jnp.asarray(np.stack([u, np.zeros_like(u)]), jnp.float32)  # along the route, or hold
+        clear = np.asarray(_check_moves(c, self.shape, arc, moves, points, mask, polytopes=polytopes))
+        needed = c.safety_margin + c.check_margin
+        if clear[0] >= needed:
+            if reached == end - 1:  # the route's end: MPPI again, with a fresh stall count
+                state = state._replace(stalled=jnp.asarray(0, jnp.int32), best_goal=jnp.asarray(jnp.inf, jnp.float32))
+            return moves[0], state._replace(route_at=jnp.asarray(reached, jnp.int32))
+        return (moves[1], state) if clear[1] >= needed else (action, state)  # else MPPI's checked action
+
     def step(self, state: MPPIState, arc, goal, obstacle_points=None):
         """One MPPI iteration with validated inputs.
 
@@ -806,6 +893,8 @@ class MPPI:
         polytopes = self.polytopes(state, points, mask) if self.config.convex_link > 0 else None
         action, new_state, info = mppi_step(self.spec, self.config, self.shape, state, arc, goal, points, mask,
                                             polytopes)
+        if self.config.route_after and goal.shape == (3,):
+            action, new_state = self.follow_route(new_state, arc, goal, points, mask, polytopes, action)
         if not bool(jnp.all(jnp.isfinite(action))):
             raise FloatingPointError("MPPI produced a non-finite action; the inputs or the shape model are broken")
         return action, new_state, info

@@ -97,6 +97,13 @@ where the convex clearance is a larger share) (``bench/closed_loop.py
 episodes of 10 seeds at 7 links 1.28x, 30.7 / 24.0 ms), and 1.27-1.31x among
 the spheres (65.1 / 51.1 and 60.7 / 46.3 ms in two runs; 1.00x before the
 swept first step).
+No preset plans routes (``MPPIConfig.route_after``, ``ncedf.route``): a route
+changes every cluttered episode that stalls for 30 steps, Table IV's recorded
+4-link episodes among them, so it waits for their sweeps to be run with it.
+``bench/closed_loop.py --variants ours+route`` measures it; on the held-out
+stalls (``--goal random`` environment 12 with 4 links, controller seeds 0-2,
+and ``--goal 4.8,-1.5,3.6`` with 5 links) see ``results/README.md``.
+
 All presets use the broad phase's default selection
 (``MPPIConfig.selection`` "mean"); at 16 observed points per m^2 it
 over-estimates some rollout distances (``bench/broad_phase.py``), which the

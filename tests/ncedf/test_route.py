@@ -1,0 +1,124 @@
+"""ncedf.route and the controller's route (MPPIConfig.route_after): the planned path judged by the exact
+robot-box distance, and its execution under the safety check."""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from ncedf.convex import fit_polytopes
+from ncedf.mppi import MPPI, ROUTE_CAPACITY, MPPIConfig
+from ncedf.robot import RobotSpec
+from ncedf.route import RouteConfig, between, plan_route, tips
+from ncedf.shapes import make_shape
+from scenarios.world import Box, World, make_observer, true_distances_batch
+
+# A two-link robot standing straight up (tip at (0, 0, 4)) and a goal below a bar that blocks the
+# straight way in arc lengths to the goal's states.
+SPEC = RobotSpec(2)
+START = np.full((2, 3), 2.0, np.float32)
+BAR = Box((1.3, 0.0, 3.0), (0.6, 3.0, 0.6))
+GOAL = np.array([2.2, 0.0, 2.2])
+ROUTE = RouteConfig(samples=600, goal_candidates=100, goal_iterations=200)
+
+
+@pytest.fixture(scope="module")
+def cloud():
+    return np.asarray(make_observer(World(boxes=(BAR,), density=30.0), 0).observe(0.0), np.float32)
+
+
+@pytest.fixture(scope="module")
+def polytopes(cloud):
+    return fit_polytopes(cloud, 1.0)
+
+
+def _exact(states: np.ndarray) -> np.ndarray:
+    return true_distances_batch(World(boxes=(BAR,)), SPEC, states, np.zeros(len(states)))[:, 0]
+
+
+def test_the_route_goes_round_the_bar_to_the_goal(polytopes):
+    route = plan_route(SPEC, polytopes, START, GOAL, jax.random.PRNGKey(0), ROUTE)
+    assert route is not None
+    np.testing.assert_array_equal(route[0], START)
+    assert np.max(np.abs(np.diff(route, axis=0))) <= ROUTE.path_step + 1e-6
+    assert np.linalg.norm(tips(route[-1:], SPEC)[0] - GOAL) <= ROUTE.goal_tolerance
+    assert _exact(route).min() > 0.0  # clear of the bar all the way, by the exact distance
+    straight, _ = between(START[None], route[-1:], ROUTE.path_step)
+    assert _exact(straight).min() < 0.0  # the straight way to the same end state crosses the bar
+
+
+def test_no_route_to_a_goal_inside_the_bar(polytopes):
+    assert plan_route(SPEC, polytopes, START, np.asarray(BAR.centre), jax.random.PRNGKey(0), ROUTE) is None
+
+
+def test_between_spaces_states_evenly_inside_each_segment():
+    a = np.zeros((3, 1, 3), np.float32)
+    b = np.array([[[0.05, 0.0, -0.05]], [[0.001, 0.0, -0.001]], [[0.0, 0.1, -0.1]]], np.float32)
+    states, segment = between(a, b, 0.01)
+    np.testing.assert_array_equal(segment, [0] * 4 + [2] * 9)  # 5 and 10 steps; 1 step has nothing inside
+    np.testing.assert_allclose(states[:4, 0, 0], [0.01, 0.02, 0.03, 0.04], atol=1e-7)
+    np.testing.assert_allclose(states[4:, 0, 1], np.arange(1, 10) * 0.01, atol=1e-7)
+
+
+def _controller() -> MPPI:
+    config = MPPIConfig(samples=16, horizon=3, convex_link=1.0, route_after=5, route=ROUTE, safety_check=True)
+    return MPPI(SPEC, make_shape("spheres", SPEC), config)
+
+
+def _with_route(state, route: np.ndarray):
+    states = np.zeros((ROUTE_CAPACITY,) + route.shape[1:], np.float32)
+    states[:len(route)] = route
+    return state._replace(route=jnp.asarray(states), route_at=jnp.asarray(0, jnp.int32),
+                          route_end=jnp.asarray(len(route), jnp.int32))
+
+
+def test_a_route_is_executed_a_step_at_a_time_and_held_where_the_check_refuses(cloud):
+    mppi = _controller()
+    c = mppi.config
+    step = c.control_bound * c.dt
+    bend = np.array([[0.3, -0.15, -0.15], [0.0, 0.0, 0.0]], np.float32) * 0.9 * step / 0.3  # within one step
+    route = (START + np.arange(4)[:, None, None] * bend / 2).astype(np.float32)  # states 0.45 steps apart
+    state = _with_route(mppi.init(jax.random.PRNGKey(0)), route)
+    # Free space: the farthest state within one step (the second after the start), exactly.
+    action, after, _ = mppi.step(state, START, GOAL)
+    np.testing.assert_allclose(np.asarray(action), (route[2] - START) / c.dt, atol=1e-5)
+    assert int(after.route_at) == 2 and int(after.route_end) == 4
+    # From there, the last state: the route's end, and MPPI takes over with a fresh stall count.
+    action, after, _ = mppi.step(after, route[2], GOAL)
+    np.testing.assert_allclose(np.asarray(action), (route[3] - route[2]) / c.dt, atol=1e-5)
+    assert int(after.route_at) == 3 and int(after.stalled) == 0
+    # A small ball of points just past where the move would take the tip (its surface 0.2 m on, the link's
+    # radius): refused; from where the robot stands it is 0.4 m off, so the robot holds.
+    now, ahead = tips(START[None], SPEC)[0], tips(route[2:3], SPEC)[0]
+    centre = ahead + 0.25 * (ahead - now) / np.linalg.norm(ahead - now)
+    d = np.random.default_rng(0).normal(size=(40, 3))
+    ball = (centre + 0.05 * d / np.linalg.norm(d, axis=1, keepdims=True)).astype(np.float32)
+    action, after, _ = mppi.step(state, START, GOAL, ball)
+    np.testing.assert_array_equal(np.asarray(action), 0.0)
+    assert int(after.route_at) == 0 and int(after.route_end) == 4
+
+
+def test_a_stalled_controller_plans_a_route_from_where_it_is(cloud):
+    mppi = _controller()
+    state = mppi.init(jax.random.PRNGKey(0))._replace(stalled=jnp.asarray(50, jnp.int32),
+                                                      best_goal=jnp.asarray(0.0, jnp.float32))  # no progress
+    _, after, _ = mppi.step(state, START, GOAL, cloud)
+    end = int(after.route_end)
+    assert int(after.routes) == 1 and 2 <= end <= ROUTE_CAPACITY and int(after.stalled) == 0
+    route = np.asarray(after.route[:end])
+    np.testing.assert_allclose(route[0], START, atol=1e-6)
+    assert np.linalg.norm(tips(route[-1:], SPEC)[0] - GOAL) <= ROUTE.goal_tolerance
+    assert _exact(route).min() > 0.0
+
+
+def test_route_settings_are_validated():
+    with pytest.raises(ValueError, match="convex_link"):
+        MPPIConfig(route_after=10)
+    with pytest.raises(ValueError, match="route_after"):
+        MPPIConfig(convex_link=1.0, route_after=-1)
+    with pytest.raises(ValueError, match="RouteConfig.samples"):
+        RouteConfig(samples=0)
+    with pytest.raises(ValueError, match="RouteConfig.check_step"):
+        dataclasses.replace(ROUTE, check_step=-0.1)
