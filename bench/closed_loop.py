@@ -546,18 +546,21 @@ def parse_variants(text: str) -> list[str]:
     values = parse_list(text, str, "variant")
     for value in values:
         try:
-            preset, fields = resolve(value)
-            if fields:
-                episodes_config_check(preset, fields)
+            resolve(value)
         except ValueError as exc:
             raise argparse.ArgumentTypeError(str(exc)) from None
     return values
 
 
-def episodes_config_check(preset: str, fields: dict) -> None:
-    """Raise ValueError naming a bad field value (MPPIConfig's own validation of the preset's
-    fields with ``fields`` changed)."""
-    MPPIConfig(**{**dict(PRESETS[preset].fields), **fields})
+def episodes_config_check(variant: str, scenario: str) -> None:
+    """Raise ValueError naming a bad field value: MPPIConfig's own validation of the preset's
+    fields in ``scenario`` with the variant's changed (some need a scenario's fields, e.g. the
+    route the cluttered scene's convex model)."""
+    preset, fields = resolve(variant)
+    try:
+        MPPIConfig(**{**PRESETS[preset].fields_for(scenario), **fields})
+    except ValueError as exc:
+        raise ValueError(f"variant {variant!r} in the {scenario} scene: {exc}") from None
 
 
 def density_arg(text: str) -> float:
@@ -597,6 +600,12 @@ def main(argv=None) -> int:
     if args.quick:
         args.links, args.seeds, args.envs = [4, 5, 7], QUICK["seeds"], QUICK["envs"]
         args.variants, args.max_steps = QUICK["variants"].split(","), QUICK["max_steps"]
+    for variant in args.variants:
+        for scenario in args.scenarios:
+            try:
+                episodes_config_check(variant, scenario)
+            except ValueError as exc:
+                p.error(str(exc))
     if "paper" not in args.variants:
         print("note: without the paper variant there is no solver-time ratio", file=sys.stderr)
 
