@@ -250,7 +250,8 @@ class MPPIConfig:
       route_after: 0 = off; else the steps without progress after which
         :meth:`MPPI.step` plans a route round the static polytopes and executes
         it (module docstring; needs ``convex_link``).
-      route: the route planner's settings (``ncedf.route.RouteConfig``).
+      route: the route planner's settings (``ncedf.route.RouteConfig``, or its
+        fields as a dict, as a recording's metadata holds them).
     """
 
     samples: int = 800
@@ -344,6 +345,8 @@ class MPPIConfig:
             raise ValueError(f"MPPIConfig.route_after must be >= 0, got {self.route_after}")
         if self.route_after and not self.convex_link:
             raise ValueError("MPPIConfig.route_after needs convex_link (the route avoids the polytopes)")
+        if isinstance(self.route, dict):  # read back from a recording's metadata
+            object.__setattr__(self, "route", RouteConfig(**self.route))
         if not isinstance(self.route, RouteConfig):
             raise ValueError(f"MPPIConfig.route must be a RouteConfig, got {type(self.route).__name__}")
         if self.stall_steps and self.target_ess is None:
