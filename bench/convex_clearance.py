@@ -35,12 +35,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from arguments import parse_list, positive
-from ncedf.convex import fit_polytopes, robot_clearance, static_rows
-from ncedf.mppi import cloud_velocity
+from ncedf.convex import robot_clearance
+from ncedf.mppi import MPPI
 from ncedf.robot import RobotSpec, forward_kinematics, sample_arc_lengths
+from ncedf.shapes import make_shape
 from recorder.cli import EXIT_STATUS, OneLineParser, Stopped, exit_with, stop_on_signals
 from scenarios import cluttered
-from scenarios.presets import CONVEX_LINK, mppi_config
+from scenarios.presets import mppi_config
 from scenarios.world import make_observer
 
 #: The forms timed: (name, ``dense`` argument of ``robot_clearance``).
@@ -63,11 +64,11 @@ def compare(links: int, args) -> dict:
     spec = RobotSpec(links)
     observer = make_observer(cluttered.make_world(), args.seed)
     config = mppi_config("ours", "cluttered", links, n_points=len(observer.observe(0.0)))
-    before, now = (np.asarray(observer.observe(t), np.float32) for t in (0.0, config.dt))
-    everywhere = np.ones(len(now), bool)
-    static = static_rows(now, everywhere, before, everywhere)
-    velocity = np.asarray(cloud_velocity(now, everywhere, before, everywhere, config.dt))
-    polytopes = fit_polytopes(now, CONVEX_LINK, static, velocity, bounds=(True,))  # as ``ncedf.mppi`` fits them
+    controller = MPPI(spec, make_shape("spheres", spec), config)
+    state = controller.init(jax.random.PRNGKey(args.seed))
+    before = controller.pad_points(observer.observe(0.0))
+    state = state._replace(previous=before[0], previous_mask=before[1])
+    polytopes = controller.polytopes(state, *controller.pad_points(observer.observe(config.dt)))  # its second step
     arcs = sample_arc_lengths(jax.random.PRNGKey(args.seed), spec, (config.samples, config.horizon, links))
     frames = forward_kinematics(arcs, spec)
     ahead = config.dt * jnp.arange(1, config.horizon + 1, dtype=arcs.dtype)
