@@ -860,6 +860,7 @@ class MPPI:
             reached += 1
         u = (route[max(reached, at + 1)] - here) / c.dt
         u = u - u.mean(axis=-1, keepdims=True)  # zero-sum per link, as every state's chambers
+        # One scale for every link (not project_controls' per link), so the move stays on the route's segment.
         u = u * min(1.0, c.control_bound / max(float(np.max(np.abs(u))), 1e-12))
         moves = jnp.asarray(np.stack([u, np.zeros_like(u)]), jnp.float32)  # along the route, or hold
         clear = np.asarray(_check_moves(c, self.shape, arc, moves, points, mask, polytopes=polytopes))
