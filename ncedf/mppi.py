@@ -114,9 +114,11 @@ dodges behind the obstacle rather than ahead of it.
 Route (``route_after`` > 0, with ``convex_link``): MPPI is local, and where
 the way to a position goal first leads away from it (a goal right behind a
 box) it stalls. When the steps without progress (the stall escape's counter,
-kept at every step) exceed ``route_after``, :meth:`MPPI.step` plans a route
-from the current state round the static polytopes (``ncedf.route``: a
-roadmap over arc lengths; the moving clusters are left out) and executes it:
+kept at every step) reach ``route_after`` + 1, and again every ``route_after``
+steps while they grow, :meth:`MPPI.step` plans a route from the current state
+round the static polytopes (``ncedf.route``: a roadmap over arc lengths; the
+moving clusters are left out). Where the roadmap holds none, nothing else
+changes: the stall escape's sharpened weights go on. Else it executes it:
 each step moves to the farthest route state within one step's bound (or
 towards the next, at the bound), if that move passes the safety check
 (:func:`step_clearance`, which sees the moving polytopes); else it holds if
@@ -833,20 +835,21 @@ class MPPI:
 
     def follow_route(self, state: MPPIState, arc, goal, points, mask, polytopes, action):
         """The action and state after MPPI's step (module docstring, "Route"): a route's next move
-        when one is being followed or the robot has stalled for more than ``route_after`` steps,
-        else MPPI's ``action``."""
+        when one is being followed or a plan is due (``route_after`` + 1, 2 ``route_after`` + 1, ...
+        steps without progress), else MPPI's ``action``."""
         c = self.config
         at, end = int(state.route_at), int(state.route_end)
         if at >= end - 1:  # no route, or its end reached
-            if int(state.stalled) <= c.route_after or int(state.routes) >= ROUTE_TRIES:
+            stalled = int(state.stalled)
+            if stalled <= c.route_after or (stalled - 1) % c.route_after or int(state.routes) >= ROUTE_TRIES:
                 return action, state
             static = polytopes._replace(present=polytopes.present & ~np.any(polytopes.velocity != 0, axis=-1))
             route = plan_route(self.spec, static, np.asarray(arc), np.asarray(goal),
                                jax.random.fold_in(state.key, ROUTE_SALT), c.route)
-            state = state._replace(routes=state.routes + 1, stalled=jnp.asarray(0, jnp.int32),
-                                   best_goal=jnp.asarray(jnp.inf, jnp.float32))
-            if route is None:
+            state = state._replace(routes=state.routes + 1)
+            if route is None:  # the stall count goes on, and with it the stall escape
                 return action, state
+            state = state._replace(stalled=jnp.asarray(0, jnp.int32), best_goal=jnp.asarray(jnp.inf, jnp.float32))
             keep = np.unique(np.linspace(0, len(route) - 1, ROUTE_CAPACITY).round().astype(int))
             states = np.zeros((ROUTE_CAPACITY,) + route.shape[1:], np.float32)
             states[:len(keep)] = route[keep]

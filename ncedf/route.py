@@ -10,7 +10,8 @@ over arc lengths, checked against the convex model of the static obstacles
 * nodes: the current state, ``samples`` random valid states
   (``ncedf.robot.sample_arc_lengths``) whose clearance to the polytopes
   (``ncedf.convex.robot_clearance``, a lower bound of the body's) is at least
-  ``node_clearance``, and goal states: the ``goal_candidates`` free nodes whose
+  ``node_clearance``, ``local_samples`` states around the current one
+  (:func:`around`) with at least ``edge_clearance``, and goal states: the ``goal_candidates`` free nodes whose
   end effectors lie nearest the goal, moved by ``goal_iterations`` projected
   gradient steps of ``goal_step`` on the squared tip error
   (``ncedf.robot.project_state`` keeps them valid), kept where the tip is within
@@ -20,7 +21,11 @@ over arc lengths, checked against the convex model of the static obstacles
   length, have at least ``edge_clearance`` (the current state's own edges too:
   the robot may be closer than ``node_clearance`` where it stalled). The body
   is that sensitive to its arc lengths: 0.01 m of change moves a joint by up to
-  0.55 m with 4 links and 1.3 m with 7 (random states, p99 0.43 and 0.78 m);
+  0.55 m with 4 links and 1.3 m with 7 (random states, p99 0.43 and 0.78 m).
+  So the random nodes alone leave a robot stalled near a box unconnected
+  (the fixed goal, 4 links, seed 1: its nearest 12 are 0.43-0.50 m away in arc
+  lengths and every edge to them meets a box); the states around it bridge
+  that gap;
 * the shortest path (Dijkstra, length in arc lengths) from the current state
   to the nearest goal state, its detours cut (:func:`shortcut`: a straight
   segment in arc lengths moves the tip along a curve, so the roadmap's path
@@ -59,6 +64,8 @@ class RouteConfig:
 
     Attributes:
       samples: random states drawn for the roadmap.
+      local_samples, local_radius: states drawn around the current one, each arc length moved by at
+        most ``local_radius`` m (:func:`around`).
       neighbours: edges tried per node.
       check_step: the most any arc length changes between checked states of an edge, m.
       node_clearance: least clearance of a node, m.
@@ -71,6 +78,8 @@ class RouteConfig:
     """
 
     samples: int = 5000
+    local_samples: int = 1000
+    local_radius: float = 0.1
     neighbours: int = 12
     check_step: float = 0.01
     node_clearance: float = 0.25
@@ -82,11 +91,11 @@ class RouteConfig:
     path_step: float = 0.002
 
     def __post_init__(self):
-        for name in ("samples", "neighbours", "goal_candidates", "goal_iterations"):
+        for name in ("samples", "local_samples", "neighbours", "goal_candidates", "goal_iterations"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
                 raise ValueError(f"RouteConfig.{name} must be an integer >= 1, got {value!r}")
-        for name in ("check_step", "node_clearance", "edge_clearance", "goal_step", "goal_tolerance", "path_step"):
+        for name in ("local_radius", "check_step", "node_clearance", "edge_clearance", "goal_step", "goal_tolerance", "path_step"):
             value = getattr(self, name)
             if not np.isfinite(value) or value <= 0:
                 raise ValueError(f"RouteConfig.{name} must be a number > 0, got {value!r}")
@@ -107,6 +116,15 @@ def clearances(arcs: np.ndarray, spec: RobotSpec, polytopes: Polytopes) -> np.nd
         out[start:start + len(part)] = np.asarray(_clearance(jnp.asarray(padded, jnp.float32), spec, polytopes))[
             :len(part)]
     return out
+
+
+@functools.partial(jax.jit, static_argnums=(2, 3, 4))
+def around(start: jnp.ndarray, key, spec: RobotSpec, count: int, radius: float) -> jnp.ndarray:
+    """(count, M, 3) valid states around ``start`` (M, 3): each moved by ``radius`` m times a uniform factor in
+    [0, 1] times a uniform direction in the box [-1, 1]^(M x 3), then projected onto the valid states."""
+    direction = jax.random.uniform(jax.random.fold_in(key, 0), (count,) + start.shape, minval=-1.0, maxval=1.0)
+    scale = radius * jax.random.uniform(jax.random.fold_in(key, 1), (count, 1, 1))
+    return jax.vmap(lambda arc: project_state(arc, spec))(start + scale * direction)
 
 
 @functools.partial(jax.jit, static_argnums=(2, 3, 4))
@@ -193,7 +211,10 @@ def plan_route(spec: RobotSpec, polytopes: Polytopes, start, goal, key, config: 
     targets = goal_states(free, goal, spec, polytopes, config)
     if len(targets) == 0:
         return None
-    nodes = np.concatenate([start[None], free, targets])
+    local = np.asarray(around(jnp.asarray(start), jax.random.fold_in(key, 1), spec, config.local_samples,
+                              config.local_radius), np.float32)
+    local = local[clearances(local, spec, polytopes) >= config.edge_clearance]
+    nodes = np.concatenate([start[None], free, local, targets])
     flat = nodes.reshape(len(nodes), -1)
     k = min(config.neighbours, len(nodes) - 1)
     length, near = cKDTree(flat).query(flat, k + 1)

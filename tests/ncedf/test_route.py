@@ -10,8 +10,8 @@ import pytest
 
 from ncedf.convex import fit_polytopes
 from ncedf.mppi import MPPI, ROUTE_CAPACITY, MPPIConfig
-from ncedf.robot import RobotSpec
-from ncedf.route import RouteConfig, between, plan_route, tips
+from ncedf.robot import RobotSpec, validate_state
+from ncedf.route import RouteConfig, around, between, plan_route, tips
 from ncedf.shapes import make_shape
 from scenarios.world import Box, World, make_observer, true_distances_batch
 
@@ -51,6 +51,20 @@ def test_the_route_goes_round_the_bar_to_the_goal(polytopes):
 
 def test_no_route_to_a_goal_inside_the_bar(polytopes):
     assert plan_route(SPEC, polytopes, START, np.asarray(BAR.centre), jax.random.PRNGKey(0), ROUTE) is None
+
+
+def test_states_around_a_state_are_valid_and_within_the_radius_at_every_scale():
+    spec, radius = RobotSpec(4), 0.1
+    start = np.asarray([[2.0, 2.0, 2.0], [1.8, 2.1, 2.1], [2.0, 1.9, 2.1], [2.2, 1.9, 1.9]], np.float32)
+    states = np.asarray(around(start, jax.random.PRNGKey(3), spec, 2000, radius))
+    np.testing.assert_array_equal(states, np.asarray(around(start, jax.random.PRNGKey(3), spec, 2000, radius)))
+    for state in states[::97]:
+        validate_state(state, spec)  # the projection keeps every state valid
+    np.testing.assert_allclose(states.sum(axis=-1), 3 * spec.length, atol=1e-5)
+    # The projection onto a convex set that holds the start moves no state farther from it (per link).
+    assert np.max(np.linalg.norm(states - start, axis=-1)) <= radius * np.sqrt(3) + 1e-6
+    farthest = np.max(np.abs(states - start), axis=(1, 2))
+    assert np.mean(farthest < 0.1 * radius) > 0.05 and np.mean(farthest > 0.8 * radius) > 0.05  # near and far
 
 
 def test_between_spaces_states_evenly_inside_each_segment():
@@ -113,6 +127,20 @@ def test_a_stalled_controller_plans_a_route_from_where_it_is(cloud):
     assert _exact(route).min() > 0.0
 
 
+def test_without_a_route_the_stall_count_goes_on_and_the_next_plan_waits(cloud):
+    mppi = _controller()
+    inside = np.asarray(BAR.centre)  # no goal state: no route
+    state = mppi.init(jax.random.PRNGKey(0))._replace(stalled=jnp.asarray(50, jnp.int32),
+                                                      best_goal=jnp.asarray(0.0, jnp.float32))  # no progress
+    _, after, _ = mppi.step(state, START, inside, cloud)  # 51 steps without progress: a plan is due
+    assert int(after.routes) == 1 and int(after.route_end) == 0
+    assert int(after.stalled) == 51 and float(after.best_goal) == 0.0  # the stall escape's state, untouched
+    _, after, _ = mppi.step(after, START, inside, cloud)
+    assert int(after.routes) == 1 and int(after.stalled) == 52  # the next plan at 51 + route_after
+    _, after, _ = mppi.step(after._replace(stalled=jnp.asarray(55, jnp.int32)), START, inside, cloud)
+    assert int(after.routes) == 2 and int(after.stalled) == 56
+
+
 def test_route_settings_are_validated():
     with pytest.raises(ValueError, match="convex_link"):
         MPPIConfig(route_after=10)
@@ -120,5 +148,7 @@ def test_route_settings_are_validated():
         MPPIConfig(convex_link=1.0, route_after=-1)
     with pytest.raises(ValueError, match="RouteConfig.samples"):
         RouteConfig(samples=0)
+    with pytest.raises(ValueError, match="RouteConfig.local_radius"):
+        RouteConfig(local_radius=0.0)
     with pytest.raises(ValueError, match="RouteConfig.check_step"):
         dataclasses.replace(ROUTE, check_step=-0.1)
