@@ -10,8 +10,8 @@ some MPPIConfig fields changed (``VARIANTS``): ``ours`` with one of its changes
 turned off (``ours-X``) or a candidate it leaves out turned on (``ours+X``:
 low-pass noise, predicted obstacle motion, the surface model of the cloud with
 and without a larger check margin, the stall escape, the per-state broad phase,
-the spheres' racing settings in every scenario: ``ours+race``; a route round
-the static obstacles after 30 steps without progress: ``ours+route``),
+the spheres' racing settings in every scenario: ``ours+race``; ``ours-route``
+is ours without the route round the boxes after 30 steps without progress),
 ``release`` with ours's sampling,
 and ``paper`` at ``ours``'s rollouts and horizon (the reference of the solver
 time). Every variant runs the same
@@ -410,11 +410,11 @@ VARIANTS: dict[str, tuple[str, dict]] = {
     "ours-unclipped": ("ours", {"update_unclipped": False}),
     "ours-reach": ("ours", {"goal_reach": False}),
     "ours+race": ("ours", {"update_unclipped": True, "goal_reach": True}),
-    "ours-convex": ("ours", {"convex_link": 0.0}),
+    "ours-convex": ("ours", {"convex_link": 0.0, "route_after": 0}),  # the route avoids the convex model
     "ours-weights": ("ours", {"w_coll": 1.1, "w_coll_terminal": 1.1}),
     "ours+hold": ("ours", {"hold_time": 1.0}),
     "ours-follow": ("ours", {"follow_executed": False}),
-    "ours+route": ("ours", {"route_after": 30}),
+    "ours-route": ("ours", {"route_after": 0}),
     "paper": ("paper", {}),
 }
 #: z for a 95% interval.

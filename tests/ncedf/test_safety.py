@@ -341,6 +341,7 @@ def test_ours_per_scenario_fields():
     assert cluttered.update_unclipped and not cluttered.goal_reach and cluttered.convex_link > 0
     assert cluttered.w_coll == cluttered.w_coll_terminal < spheres.w_coll
     assert cluttered.stall_steps > 0 and spheres.stall_steps == 0 and cluttered.hold_time == 0
+    assert cluttered.route_after == cluttered.stall_steps and spheres.route_after == 0
     for scenario in ("charging", "custom"):
         other = mppi_config("ours", scenario, 4, n_points=8, margin_extra=0.7)
         assert not other.update_unclipped and not other.goal_reach and other.convex_link == 0
