@@ -11,10 +11,10 @@ over arc lengths, checked against the convex model of the static obstacles
   (``ncedf.robot.sample_arc_lengths``) whose clearance to the polytopes
   (``ncedf.convex.robot_clearance``, a lower bound of the body's) is at least
   ``node_clearance``, ``local_samples`` states around the current one
-  (:func:`around`) with at least ``edge_clearance``, and goal states: the ``goal_candidates`` free nodes whose
-  end effectors lie nearest the goal, moved by ``goal_iterations`` projected
-  gradient steps of ``goal_step`` on the squared tip error
-  (``ncedf.robot.project_state`` keeps them valid), kept where the tip is within
+  (:func:`around`) with at least ``edge_clearance``, and goal states: the
+  ``goal_candidates`` free nodes whose end effectors lie nearest the goal,
+  moved by ``goal_iterations`` projected gradient steps of ``goal_step`` on
+  the squared tip error (``ncedf.robot.project_state`` keeps them valid), kept where the tip is within
   ``goal_tolerance`` of the goal and the clearance still ``node_clearance``;
 * edges: each node to its ``neighbours`` nearest (Euclidean in arc lengths),
   kept where the states inside the segment, ``check_step`` apart in every arc
@@ -95,7 +95,8 @@ class RouteConfig:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
                 raise ValueError(f"RouteConfig.{name} must be an integer >= 1, got {value!r}")
-        for name in ("local_radius", "check_step", "node_clearance", "edge_clearance", "goal_step", "goal_tolerance", "path_step"):
+        for name in ("local_radius", "check_step", "node_clearance", "edge_clearance", "goal_step", "goal_tolerance",
+                     "path_step"):
             value = getattr(self, name)
             if not np.isfinite(value) or value <= 0:
                 raise ValueError(f"RouteConfig.{name} must be a number > 0, got {value!r}")

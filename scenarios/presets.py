@@ -103,8 +103,8 @@ roadmap over arc lengths round the static clusters' convex model, executed a
 step at a time under the safety check; where the roadmap holds none the stall
 escape goes on, and the next plan comes 30 steps later). Judged exactly
 (2026-12-01, ``bench/closed_loop.py``: then the variant ``ours+route``, now
-``ours``; ``ours-route`` is ours without it): Table IV's 20 seeds per link count 20 / 20 / 20, no collision,
-median reach step 73 / 25 / 12 (without it 96 / 27 / 12), smallest exact
+``ours``; ``ours-route`` is ours without it): Table IV's 20 seeds per link
+count 20 / 20 / 20, no collision, median reach step 73 / 25 / 12 (without it 96 / 27 / 12), smallest exact
 clearance 0.060 m; the random goals of environment seeds 0-23 (4, 5 and 7
 links) 72 of 72 (without it 71: environment 12 with 4 links stuck 2.5 m in
 front of the upper box, now reached at step 186); 5 chosen goal positions x 2
@@ -243,8 +243,8 @@ PRESETS: dict[str, Preset] = {
                           ("noise_smoothing", SPHERES_SMOOTHING), ("sweep_first", True),
                           ("follow_executed", True))),
              ("cluttered", (("update_unclipped", True), ("convex_link", CONVEX_LINK), ("w_coll", CLUTTERED_W_COLL),
-                            ("w_coll_terminal", CLUTTERED_W_COLL), ("stall_steps", STALL_STEPS), ("stall_ess", STALL_ESS),
-                            ("route_after", ROUTE_AFTER)))),
+                            ("w_coll_terminal", CLUTTERED_W_COLL), ("stall_steps", STALL_STEPS),
+                            ("stall_ess", STALL_ESS), ("route_after", ROUTE_AFTER)))),
         ),
     )
 }
