@@ -114,7 +114,8 @@ def test_sweep_first_scores_the_first_step_over_its_crossing():
     assert truth < -0.1
     assert np.all(np.asarray(plain.rollout_min_distance)[:, 0] > 0.3)
     np.testing.assert_allclose(np.asarray(swept.rollout_min_distance)[:, 0], truth, atol=1e-4)
-    np.testing.assert_array_equal(swept.rollout_min_distance[:, 1:], plain.rollout_min_distance[:, 1:])
+    # The later steps are scored alike: two programs, so equal up to float rounding (XLA may fuse them apart).
+    np.testing.assert_allclose(swept.rollout_min_distance[:, 1:], plain.rollout_min_distance[:, 1:], rtol=0, atol=1e-6)
     # The crossing is now charged the collision cost's ceiling (1 / epsilon) at x^1.
     assert float(swept.cost_coll) - float(plain.cost_coll) > 0.9 * WALL_CONFIG.w_coll / WALL_CONFIG.epsilon
 
