@@ -158,7 +158,7 @@ from ncedf.cloud import fill_weights, interpolate
 from ncedf.convex import fit_polytopes, robot_clearance, static_rows
 from ncedf.precision import MATMUL
 from ncedf.robot import RobotSpec, forward_kinematics, validate_state
-from ncedf.route import RouteConfig, plan_route
+from ncedf.route import RouteConfig, plan_route, tips
 from ncedf.shapes import Shape
 
 #: Ways to sample zero-sum control rates (``MPPIConfig.sampling``).
@@ -905,3 +905,21 @@ class MPPI:
         if not bool(jnp.all(jnp.isfinite(action))):
             raise FloatingPointError("MPPI produced a non-finite action; the inputs or the shape model are broken")
         return action, new_state, info
+
+    def warm_up(self, state: MPPIState, arc, goal, obstacle_points=None) -> None:
+        """Compile what :meth:`step` runs, before a closed loop's first timed step (its arguments as
+        ``step``'s; results discarded): the step itself and, with ``route_after``, the route's programs,
+        through a plan to where the robot's tip already is and the check of a route's moves. A route's
+        first plan would otherwise compile mid-episode (10-25 s on a 2-core CPU, where a warm plan takes
+        about 1 s)."""
+        jax.block_until_ready(self.step(state, arc, goal, obstacle_points))
+        goal = self.check_goal(goal)
+        if not (self.config.route_after and goal.shape == (3,)):
+            return
+        arc = jnp.asarray(validate_state(arc, self.spec), jnp.float32)  # as step's
+        points, mask = self.pad_points(obstacle_points)
+        polytopes = self.polytopes(state, points, mask)
+        here = np.asarray(arc)
+        plan_route(self.spec, polytopes, here, tips(here[None], self.spec)[0], state.key, self.config.route)
+        moves = jnp.zeros((2,) + arc.shape, jnp.float32)  # as follow_route's: along the route, or hold
+        jax.block_until_ready(_check_moves(self.config, self.shape, arc, moves, points, mask, polytopes=polytopes))

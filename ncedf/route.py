@@ -16,8 +16,8 @@ over arc lengths, checked against the convex model of the static obstacles
   moved by ``goal_iterations`` projected gradient steps of ``goal_step`` on
   the squared tip error (``ncedf.robot.project_state`` keeps them valid), kept where the tip is within
   ``goal_tolerance`` of the goal and the clearance still ``node_clearance``;
-* edges: each node to its ``neighbours`` nearest (Euclidean in arc lengths),
-  kept where the states inside the segment, ``check_step`` apart in every arc
+* edges: each node to its ``neighbours`` nearest (Euclidean in arc lengths;
+  an edge either of its nodes lists), kept where the states inside the segment, ``check_step`` apart in every arc
   length, have at least ``edge_clearance`` (the current state's own edges too:
   the robot may be closer than ``node_clearance`` where it stalled). The body
   is that sensitive to its arc lengths: 0.01 m of change moves a joint by up to
@@ -27,7 +27,8 @@ over arc lengths, checked against the convex model of the static obstacles
   lengths and every edge to them meets a box); the states around it bridge
   that gap;
 * the shortest path (Dijkstra, length in arc lengths) from the current state
-  to the nearest goal state, its detours cut (:func:`shortcut`: a straight
+  to the nearest goal state, the edges checked lazily (:func:`lazy_shortest_path`:
+  only those of the shortest paths tried, a few dozen of some 40 000), its detours cut (:func:`shortcut`: a straight
   segment in arc lengths moves the tip along a curve, so the roadmap's path
   wanders).
 
@@ -37,13 +38,17 @@ them passes its safety check first, which sees the moving obstacles.
 
 Host-side (numpy and scipy around jitted JAX), as the polytope fit is: it runs
 once per stall, not per step. The states are scored ``PASS`` at a time (one
-compiled program per robot and settings).
+compiled program per robot and settings, which ``MPPI.warm_up`` compiles before
+an episode). A plan from a stalled 4-link robot in the cluttered scene took 0.9-1.6 s
+on a 2-core CPU (2.4-3.9 s with every edge checked, a per-count compile of the
+tips, and 23-33 s for the first plan, which compiled mid-episode before ``warm_up``).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import functools
+import itertools
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -56,6 +61,8 @@ from ncedf.robot import RobotSpec, end_effector_pose, forward_kinematics, projec
 
 #: States per jitted clearance call (padded), so every call reuses one program.
 PASS = 4096
+#: Rounds of :func:`lazy_shortest_path` before it checks every edge left.
+LAZY_ROUNDS = 50
 
 
 @dataclasses.dataclass(frozen=True)
@@ -108,15 +115,20 @@ def _clearance(arcs: jnp.ndarray, spec: RobotSpec, polytopes: Polytopes) -> jnp.
     return robot_clearance(arcs, forward_kinematics(arcs, spec), spec, polytopes)
 
 
-def clearances(arcs: np.ndarray, spec: RobotSpec, polytopes: Polytopes) -> np.ndarray:
-    """(N,) clearance of (N, M, 3) states to the polytopes (a lower bound of the body's), m."""
-    out = np.empty(len(arcs), np.float32)
+def _in_passes(program, arcs: np.ndarray, row: tuple[int, ...], *args) -> np.ndarray:
+    """(N, *row) float32: ``program(states, *args)`` of (N, M, 3) states, ``PASS`` at a time (the last pass padded
+    with its last state), so one compiled program serves every N."""
+    out = np.empty((len(arcs),) + row, np.float32)
     for start in range(0, len(arcs), PASS):
         part = arcs[start:start + PASS]
         padded = np.concatenate([part, np.repeat(part[-1:], PASS - len(part), axis=0)])
-        out[start:start + len(part)] = np.asarray(_clearance(jnp.asarray(padded, jnp.float32), spec, polytopes))[
-            :len(part)]
+        out[start:start + len(part)] = np.asarray(program(jnp.asarray(padded, jnp.float32), *args))[:len(part)]
     return out
+
+
+def clearances(arcs: np.ndarray, spec: RobotSpec, polytopes: Polytopes) -> np.ndarray:
+    """(N,) clearance of (N, M, 3) states to the polytopes (a lower bound of the body's), m."""
+    return _in_passes(_clearance, arcs, (), spec, polytopes)
 
 
 @functools.partial(jax.jit, static_argnums=(2, 3, 4))
@@ -149,7 +161,7 @@ def _tips(arcs: jnp.ndarray, spec: RobotSpec) -> jnp.ndarray:
 
 def tips(arcs: np.ndarray, spec: RobotSpec) -> np.ndarray:
     """(N, 3) end-effector positions of (N, M, 3) states, m."""
-    return np.asarray(_tips(jnp.asarray(arcs, jnp.float32), spec), np.float64)
+    return _in_passes(_tips, np.asarray(arcs, np.float32), (3,), spec).astype(np.float64)
 
 
 def goal_states(free: np.ndarray, goal: np.ndarray, spec: RobotSpec, polytopes: Polytopes,
@@ -198,6 +210,39 @@ def shortcut(path: np.ndarray, spec: RobotSpec, polytopes: Polytopes, config: Ro
     return path[kept]
 
 
+def lazy_shortest_path(nodes: np.ndarray, i: np.ndarray, j: np.ndarray, w: np.ndarray, goals: int, spec: RobotSpec,
+                       polytopes: Polytopes, config: RouteConfig) -> list[int] | None:
+    """The node indices of the shortest path from node 0 to any of the last ``goals`` nodes (N, M, 3) over the
+    edges (i, j) (E,) of lengths w (E,) that are clear (``edge_clearance``, checked ``check_step`` apart), or
+    None when no such path exists.
+
+    Lazily: the shortest path over the edges not yet found blocked, its unchecked edges checked, repeated until
+    a path's edges are all clear. That path is the shortest over the clear edges, as if every edge had been
+    checked first, and a route usually checks a few dozen edges instead of tens of thousands. After
+    ``LAZY_ROUNDS`` rounds the edges still unchecked are checked at once, which bounds the rounds where no
+    path exists."""
+    clear = np.zeros(len(i), np.int8)  # 1 clear, -1 blocked, 0 not checked yet
+    index = {(a, b): e for e, (a, b) in enumerate(zip(i.tolist(), j.tolist()))}
+    ends = np.arange(len(nodes) - goals, len(nodes))
+    for round_ in itertools.count(1):
+        kept = clear >= 0
+        graph = coo_matrix((w[kept], (i[kept], j[kept])), shape=(len(nodes), len(nodes)))
+        dist, previous = dijkstra(graph, directed=False, indices=0, return_predecessors=True)
+        reached = ends[np.isfinite(dist[ends])]
+        if len(reached) == 0:
+            return None
+        path = [int(reached[np.argmin(dist[reached])])]
+        while path[-1] != 0:
+            path.append(int(previous[path[-1]]))
+        path = path[::-1]
+        edges = np.asarray([index[min(a, b), max(a, b)] for a, b in zip(path[:-1], path[1:])], int)
+        unknown = edges[clear[edges] == 0] if round_ < LAZY_ROUNDS else np.flatnonzero(clear == 0)
+        if not np.any(clear[edges] == 0):
+            return path
+        clear[unknown] = np.where(edge_clearances(nodes[i[unknown]], nodes[j[unknown]], spec, polytopes,
+                                                  config.check_step) >= config.edge_clearance, 1, -1)
+
+
 def plan_route(spec: RobotSpec, polytopes: Polytopes, start, goal, key, config: RouteConfig = RouteConfig()
                ) -> np.ndarray | None:
     """(S, M, 3) the states of a route from the state ``start`` (M, 3) m to one whose tip reaches ``goal`` (3,) m,
@@ -220,19 +265,13 @@ def plan_route(spec: RobotSpec, polytopes: Polytopes, start, goal, key, config: 
     k = min(config.neighbours, len(nodes) - 1)
     length, near = cKDTree(flat).query(flat, k + 1)
     i, j, w = np.repeat(np.arange(len(nodes)), k), near[:, 1:].ravel(), length[:, 1:].ravel()
-    once = i < j
+    i, j = np.minimum(i, j), np.maximum(i, j)  # an edge once, whichever of its nodes lists the other
+    _, once = np.unique(i * len(nodes) + j, return_index=True)
     i, j, w = i[once], j[once], w[once]
-    ok = edge_clearances(nodes[i], nodes[j], spec, polytopes, config.check_step) >= config.edge_clearance
-    graph = coo_matrix((w[ok], (i[ok], j[ok])), shape=(len(nodes), len(nodes)))
-    dist, previous = dijkstra(graph, directed=False, indices=0, return_predecessors=True)
-    ends = np.arange(len(nodes) - len(targets), len(nodes))
-    ends = ends[np.isfinite(dist[ends])]
-    if len(ends) == 0:
+    path = lazy_shortest_path(nodes, i, j, w, len(targets), spec, polytopes, config)
+    if path is None:
         return None
-    path = [int(ends[np.argmin(dist[ends])])]
-    while path[-1] != 0:
-        path.append(int(previous[path[-1]]))
-    path = shortcut(nodes[path[::-1]], spec, polytopes, config)
+    path = shortcut(nodes[path], spec, polytopes, config)
     inner, segment = between(path[:-1], path[1:], config.path_step)
     order = np.argsort(np.concatenate([segment + 0.5, np.arange(len(path))]), kind="stable")
     return np.concatenate([inner, path])[order]

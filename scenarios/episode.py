@@ -493,9 +493,8 @@ class Episode:
         # The start is judged like a step, as the motion of length zero at t_0 (this also
         # compiles the judge before the progress bar starts).
         start_distance = world_mod.judge_step(scene.world, spec, arc, arc, 0.0, 0.0).min_distance
-        # Compile the controller before the first timed step (a pure call; its results are discarded).
-        warm_state = mppi.init(jax.random.PRNGKey(self.settings.seed))
-        jax.block_until_ready(mppi.step(warm_state, arc, goal_jnp, scene.observer.observe(0.0)))
+        # Compile the controller (and its route's programs) before the first timed step.
+        mppi.warm_up(mppi.init(jax.random.PRNGKey(self.settings.seed)), arc, goal_jnp, scene.observer.observe(0.0))
 
         recorder = None
         if out is not None:

@@ -8,10 +8,16 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import dijkstra
+from scipy.spatial import cKDTree
+
+import ncedf.mppi as mppi_module
+import ncedf.route as route_module
 from ncedf.convex import fit_polytopes
 from ncedf.mppi import MPPI, ROUTE_CAPACITY, MPPIConfig
-from ncedf.robot import RobotSpec, validate_state
-from ncedf.route import RouteConfig, around, between, plan_route, tips
+from ncedf.robot import RobotSpec, sample_arc_lengths, validate_state
+from ncedf.route import RouteConfig, around, between, clearances, goal_states, lazy_shortest_path, plan_route, tips
 from ncedf.shapes import make_shape
 from scenarios.world import Box, World, make_observer, true_distances_batch
 
@@ -51,6 +57,56 @@ def test_the_route_goes_round_the_bar_to_the_goal(polytopes):
 
 def test_no_route_to_a_goal_inside_the_bar(polytopes):
     assert plan_route(SPEC, polytopes, START, np.asarray(BAR.centre), jax.random.PRNGKey(0), ROUTE) is None
+
+
+def _roadmap(polytopes):
+    """A roadmap as plan_route's: the start, free random states and goal states; each node's 8 nearest."""
+    drawn = np.asarray(sample_arc_lengths(jax.random.PRNGKey(5), SPEC, (400, SPEC.n_links)), np.float32)
+    free = drawn[clearances(drawn, SPEC, polytopes) >= ROUTE.node_clearance]
+    targets = goal_states(free, GOAL, SPEC, polytopes, ROUTE)
+    nodes = np.concatenate([START[None], free, targets])
+    length, near = cKDTree(nodes.reshape(len(nodes), -1)).query(nodes.reshape(len(nodes), -1), 9)
+    i, j, w = np.repeat(np.arange(len(nodes)), 8), near[:, 1:].ravel(), length[:, 1:].ravel()
+    once = i < j
+    return nodes, i[once], j[once], w[once], len(targets)
+
+
+def _shortest(nodes, i, j, w, ok, ends):
+    """The shortest path from node 0 to the nearest of ``ends`` over the edges ``ok``, or None."""
+    graph = coo_matrix((w[ok], (i[ok], j[ok])), shape=(len(nodes), len(nodes)))
+    dist, previous = dijkstra(graph, directed=False, indices=0, return_predecessors=True)
+    ends = ends[np.isfinite(dist[ends])]
+    if len(ends) == 0:
+        return None
+    path = [int(ends[np.argmin(dist[ends])])]
+    while path[-1] != 0:
+        path.append(int(previous[path[-1]]))
+    return path[::-1]
+
+
+@pytest.mark.parametrize("rounds", [route_module.LAZY_ROUNDS, 1])
+def test_lazy_checks_find_the_path_that_checking_every_edge_finds(polytopes, monkeypatch, rounds):
+    nodes, i, j, w, goals = _roadmap(polytopes)
+    ok = route_module.edge_clearances(nodes[i], nodes[j], SPEC, polytopes, ROUTE.check_step) >= ROUTE.edge_clearance
+    assert 0 < ok.sum() < len(ok)
+    checked = []
+    counted = route_module.edge_clearances
+    monkeypatch.setattr(route_module, "LAZY_ROUNDS", rounds)
+    monkeypatch.setattr(route_module, "edge_clearances", lambda a, *rest: checked.append(len(a)) or counted(a, *rest))
+    expected = _shortest(nodes, i, j, w, ok, np.arange(len(nodes) - goals, len(nodes)))
+    assert expected is not None and len(expected) > 2
+    assert lazy_shortest_path(nodes, i, j, w, goals, SPEC, polytopes, ROUTE) == expected
+    # A goal state whose straight edge from the start meets the bar, and no other edge: no path.
+    targets = nodes[len(nodes) - goals:]
+    straight = counted(np.repeat(START[None], goals, axis=0), targets, SPEC, polytopes, ROUTE.check_step)
+    blocked = targets[straight < ROUTE.edge_clearance]
+    assert len(blocked) > 0
+    pair = np.stack([START, blocked[0]])
+    assert lazy_shortest_path(pair, np.array([0]), np.array([1]), np.array([1.0]), 1, SPEC, polytopes, ROUTE) is None
+    if rounds == 1:  # every edge checked at once after the first path
+        assert checked[0] == len(i)
+    else:
+        assert sum(checked[:1]) < len(i) // 10  # the first search checks only its path's edges
 
 
 def test_states_around_a_state_are_valid_and_within_the_radius_at_every_scale():
@@ -152,3 +208,19 @@ def test_route_settings_are_validated():
         RouteConfig(local_radius=0.0)
     with pytest.raises(ValueError, match="RouteConfig.check_step"):
         dataclasses.replace(ROUTE, check_step=-0.1)
+
+
+def test_warm_up_compiles_the_routes_programs_so_a_plan_compiles_nothing(cloud):
+    mppi = _controller()
+    programs = [route_module._clearance, route_module._refine, route_module._tips, route_module.around,
+                mppi_module._check_moves]
+    jax.clear_caches()  # so the warm-up compiles each of them, whatever the tests before compiled
+    before = [p._cache_size() for p in programs]
+    state = mppi.init(jax.random.PRNGKey(0))
+    mppi.warm_up(state, START, GOAL, cloud)
+    warm = [p._cache_size() for p in programs]
+    assert all(w > b for w, b in zip(warm, before))
+    stalled = state._replace(stalled=jnp.asarray(50, jnp.int32), best_goal=jnp.asarray(0.0, jnp.float32))
+    _, after, _ = mppi.step(stalled, START, GOAL, cloud)
+    assert int(after.routes) == 1 and int(after.route_end) > 0  # a plan, its states in other counts than the warm-up's
+    assert [p._cache_size() for p in programs] == warm
