@@ -17,9 +17,10 @@ over arc lengths, checked against the convex model of the static obstacles
   the squared tip error (``ncedf.robot.project_state`` keeps them valid), kept where the tip is within
   ``goal_tolerance`` of the goal and the clearance still ``node_clearance``;
 * edges: each node to its ``neighbours`` nearest (Euclidean in arc lengths;
-  an edge either of its nodes lists), kept where the states inside the segment, ``check_step`` apart in every arc
-  length, have at least ``edge_clearance`` (the current state's own edges too:
-  the robot may be closer than ``node_clearance`` where it stalled). The body
+  an edge where either node lists the other), kept where the states inside the
+  segment, ``check_step`` apart in every arc length, have at least
+  ``edge_clearance`` (the current state's own edges too: the robot may be
+  closer than ``node_clearance`` where it stalled). The body
   is that sensitive to its arc lengths: 0.01 m of change moves a joint by up to
   0.55 m with 4 links and 1.3 m with 7 (random states, p99 0.43 and 0.78 m).
   So the random nodes alone leave a robot stalled near a box unconnected
@@ -27,10 +28,11 @@ over arc lengths, checked against the convex model of the static obstacles
   lengths and every edge to them meets a box); the states around it bridge
   that gap;
 * the shortest path (Dijkstra, length in arc lengths) from the current state
-  to the nearest goal state, the edges checked lazily (:func:`lazy_shortest_path`:
-  only those of the shortest paths tried, a few dozen of some 40 000), its detours cut (:func:`shortcut`: a straight
-  segment in arc lengths moves the tip along a curve, so the roadmap's path
-  wanders).
+  to the nearest goal state, its edges checked lazily
+  (:func:`lazy_shortest_path`: only those of the shortest paths tried, a few
+  dozen of some 30 000 with 4 links), its detours cut (:func:`shortcut`: a
+  straight segment in arc lengths moves the tip along a curve, so the
+  roadmap's path wanders).
 
 The route is the path's states, ``path_step`` apart in every arc length. The
 controller executes them (``MPPIConfig.route_after``): each step's move along
@@ -236,9 +238,9 @@ def lazy_shortest_path(nodes: np.ndarray, i: np.ndarray, j: np.ndarray, w: np.nd
             path.append(int(previous[path[-1]]))
         path = path[::-1]
         edges = np.asarray([index[min(a, b), max(a, b)] for a, b in zip(path[:-1], path[1:])], int)
-        unknown = edges[clear[edges] == 0] if round_ < LAZY_ROUNDS else np.flatnonzero(clear == 0)
-        if not np.any(clear[edges] == 0):
+        if np.all(clear[edges] == 1):
             return path
+        unknown = edges[clear[edges] == 0] if round_ < LAZY_ROUNDS else np.flatnonzero(clear == 0)
         clear[unknown] = np.where(edge_clearances(nodes[i[unknown]], nodes[j[unknown]], spec, polytopes,
                                                   config.check_step) >= config.edge_clearance, 1, -1)
 
