@@ -41,9 +41,10 @@ them passes its safety check first, which sees the moving obstacles.
 Host-side (numpy and scipy around jitted JAX), as the polytope fit is: it runs
 once per stall, not per step. The states are scored ``PASS`` at a time (one
 compiled program per robot and settings, which ``MPPI.warm_up`` compiles before
-an episode). A plan from a stalled 4-link robot in the cluttered scene took 0.9-1.6 s
-on a 2-core CPU (2.4-3.9 s with every edge checked, a per-count compile of the
-tips, and 23-33 s for the first plan, which compiled mid-episode before ``warm_up``).
+an episode). A plan from a stalled 4-link robot in the cluttered scene took 1.0-1.6 s
+on a 2-core CPU in four of five draws and 5.7 s in the fifth, whose lazy search fell back
+to every edge (before: 2.4-3.9 s with every edge checked and a compile of the tips per
+count of states, and 23-33 s for the first plan, which compiled mid-episode).
 """
 
 from __future__ import annotations
