@@ -6,7 +6,8 @@
 ``ncedf.route.plan_route`` searches its roadmap lazily (``lazy_shortest_path``:
 the shortest path over the edges not yet found blocked, only its edges checked,
 repeated). The reference checks every edge before its search: the same function
-with ``LAZY_ROUNDS`` = 1, which checks all edges at once after the first path.
+with ``RouteConfig.lazy_rounds`` = 1, which checks all edges at once after the
+first path.
 Both plan from the same states, in the cluttered scene, to its goal, round the
 convex model of its boxes observed at the scene's density (as the controller
 fits it; the moving spheres are not in a plan's model). The starts are random
@@ -26,6 +27,7 @@ clearance, the goal states' 400 refinement steps) is now most of its time.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import time
 
@@ -56,16 +58,11 @@ def starts_near_a_box(spec: RobotSpec, polytopes, count: int, seed: int) -> np.n
     return near[:count]
 
 
-def timed_plan(spec, polytopes, start, key, rounds: int) -> tuple[np.ndarray | None, float]:
-    """plan_route's route and wall time, s, with ``LAZY_ROUNDS`` = rounds."""
-    kept = route.LAZY_ROUNDS
-    route.LAZY_ROUNDS = rounds
-    try:
-        begin = time.perf_counter()
-        path = route.plan_route(spec, polytopes, start, np.asarray(cluttered.GOAL), key)
-        return path, time.perf_counter() - begin
-    finally:
-        route.LAZY_ROUNDS = kept
+def timed_plan(spec, polytopes, start, key, config: route.RouteConfig) -> tuple[np.ndarray | None, float]:
+    """plan_route's route and wall time, s."""
+    begin = time.perf_counter()
+    path = route.plan_route(spec, polytopes, start, np.asarray(cluttered.GOAL), key, config)
+    return path, time.perf_counter() - begin
 
 
 def compare(links: int, args) -> dict:
@@ -75,12 +72,14 @@ def compare(links: int, args) -> dict:
     polytopes = fit_polytopes(np.asarray(make_observer(boxes, args.seed).observe(0.0)), CONVEX_LINK)
     starts = starts_near_a_box(spec, polytopes, args.starts, args.seed)
     key = jax.random.PRNGKey(args.seed)
-    timed_plan(spec, polytopes, starts[0], key, route.LAZY_ROUNDS)  # compiles
+    lazy_config = route.RouteConfig()
+    eager_config = dataclasses.replace(lazy_config, lazy_rounds=1)
+    timed_plan(spec, polytopes, starts[0], key, lazy_config)  # compiles
     lazy, eager, same, found = [], [], 0, 0
     for i, start in enumerate(starts):
         k = jax.random.fold_in(key, i)
-        a, ta = timed_plan(spec, polytopes, start, k, route.LAZY_ROUNDS)
-        b, tb = timed_plan(spec, polytopes, start, k, 1)
+        a, ta = timed_plan(spec, polytopes, start, k, lazy_config)
+        b, tb = timed_plan(spec, polytopes, start, k, eager_config)
         lazy.append(ta)
         eager.append(tb)
         found += a is not None

@@ -64,8 +64,6 @@ from ncedf.robot import RobotSpec, end_effector_pose, forward_kinematics, projec
 
 #: States per jitted clearance call (padded), so every call reuses one program.
 PASS = 4096
-#: Rounds of :func:`lazy_shortest_path` before it checks every edge left.
-LAZY_ROUNDS = 50
 
 
 @dataclasses.dataclass(frozen=True)
@@ -85,6 +83,8 @@ class RouteConfig:
         (m^2) and their size (m per unit gradient).
       goal_tolerance: a goal state's tip is this close to the goal, m.
       path_step: the most any arc length changes between the path's states, m.
+      lazy_rounds: rounds of :func:`lazy_shortest_path` before it checks every edge left (1: every edge
+        checked after the first search, as if all were checked first).
     """
 
     samples: int = 5000
@@ -99,9 +99,10 @@ class RouteConfig:
     goal_step: float = 2e-4
     goal_tolerance: float = 0.2
     path_step: float = 0.002
+    lazy_rounds: int = 50
 
     def __post_init__(self):
-        for name in ("samples", "local_samples", "neighbours", "goal_candidates", "goal_iterations"):
+        for name in ("samples", "local_samples", "neighbours", "goal_candidates", "goal_iterations", "lazy_rounds"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
                 raise ValueError(f"RouteConfig.{name} must be an integer >= 1, got {value!r}")
@@ -213,6 +214,32 @@ def shortcut(path: np.ndarray, spec: RobotSpec, polytopes: Polytopes, config: Ro
     return path[kept]
 
 
+def roadmap_edges(nodes: np.ndarray, neighbours: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The roadmap's edges over (N, M, 3) nodes: each node to its ``neighbours`` nearest (Euclidean in arc
+    lengths), once whichever of its two nodes lists the other: (i, j) (E,) with i < j and lengths w (E,)."""
+    flat = nodes.reshape(len(nodes), -1)
+    k = min(neighbours, len(nodes) - 1)
+    length, near = cKDTree(flat).query(flat, k + 1)
+    i, j, w = np.repeat(np.arange(len(nodes)), k), near[:, 1:].ravel(), length[:, 1:].ravel()
+    i, j = np.minimum(i, j), np.maximum(i, j)
+    _, once = np.unique(i * len(nodes) + j, return_index=True)
+    return i[once], j[once], w[once]
+
+
+def shortest_path(count: int, i: np.ndarray, j: np.ndarray, w: np.ndarray, ends: np.ndarray) -> list[int] | None:
+    """The node indices of the shortest path from node 0 to the nearest of ``ends`` over the undirected edges
+    (i, j) (E,) of lengths w (E,) among ``count`` nodes (Dijkstra), or None when no end is reached."""
+    graph = coo_matrix((w, (i, j)), shape=(count, count))
+    dist, previous = dijkstra(graph, directed=False, indices=0, return_predecessors=True)
+    reached = ends[np.isfinite(dist[ends])]
+    if len(reached) == 0:
+        return None
+    path = [int(reached[np.argmin(dist[reached])])]
+    while path[-1] != 0:
+        path.append(int(previous[path[-1]]))
+    return path[::-1]
+
+
 def lazy_shortest_path(nodes: np.ndarray, i: np.ndarray, j: np.ndarray, w: np.ndarray, goals: int, spec: RobotSpec,
                        polytopes: Polytopes, config: RouteConfig) -> list[int] | None:
     """The node indices of the shortest path from node 0 to any of the last ``goals`` nodes (N, M, 3) over the
@@ -222,26 +249,20 @@ def lazy_shortest_path(nodes: np.ndarray, i: np.ndarray, j: np.ndarray, w: np.nd
     Lazily: the shortest path over the edges not yet found blocked, its unchecked edges checked, repeated until
     a path's edges are all clear. That path is the shortest over the clear edges, as if every edge had been
     checked first, and a route usually checks a few dozen edges instead of tens of thousands. After
-    ``LAZY_ROUNDS`` rounds the edges still unchecked are checked at once, which bounds the rounds where no
+    ``lazy_rounds`` rounds the edges still unchecked are checked at once, which bounds the rounds where no
     path exists."""
     clear = np.zeros(len(i), np.int8)  # 1 clear, -1 blocked, 0 not checked yet
     index = {(a, b): e for e, (a, b) in enumerate(zip(i.tolist(), j.tolist()))}
     ends = np.arange(len(nodes) - goals, len(nodes))
     for round_ in itertools.count(1):
         kept = clear >= 0
-        graph = coo_matrix((w[kept], (i[kept], j[kept])), shape=(len(nodes), len(nodes)))
-        dist, previous = dijkstra(graph, directed=False, indices=0, return_predecessors=True)
-        reached = ends[np.isfinite(dist[ends])]
-        if len(reached) == 0:
+        path = shortest_path(len(nodes), i[kept], j[kept], w[kept], ends)
+        if path is None:
             return None
-        path = [int(reached[np.argmin(dist[reached])])]
-        while path[-1] != 0:
-            path.append(int(previous[path[-1]]))
-        path = path[::-1]
         edges = np.asarray([index[min(a, b), max(a, b)] for a, b in zip(path[:-1], path[1:])], int)
         if np.all(clear[edges] == 1):
             return path
-        unknown = edges[clear[edges] == 0] if round_ < LAZY_ROUNDS else np.flatnonzero(clear == 0)
+        unknown = edges[clear[edges] == 0] if round_ < config.lazy_rounds else np.flatnonzero(clear == 0)
         clear[unknown] = np.where(edge_clearances(nodes[i[unknown]], nodes[j[unknown]], spec, polytopes,
                                                   config.check_step) >= config.edge_clearance, 1, -1)
 
@@ -264,13 +285,7 @@ def plan_route(spec: RobotSpec, polytopes: Polytopes, start, goal, key, config: 
                               config.local_radius), np.float32)
     local = local[clearances(local, spec, polytopes) >= config.edge_clearance]
     nodes = np.concatenate([start[None], free, local, targets])
-    flat = nodes.reshape(len(nodes), -1)
-    k = min(config.neighbours, len(nodes) - 1)
-    length, near = cKDTree(flat).query(flat, k + 1)
-    i, j, w = np.repeat(np.arange(len(nodes)), k), near[:, 1:].ravel(), length[:, 1:].ravel()
-    i, j = np.minimum(i, j), np.maximum(i, j)  # an edge once, whichever of its nodes lists the other
-    _, once = np.unique(i * len(nodes) + j, return_index=True)
-    i, j, w = i[once], j[once], w[once]
+    i, j, w = roadmap_edges(nodes, config.neighbours)
     path = lazy_shortest_path(nodes, i, j, w, len(targets), spec, polytopes, config)
     if path is None:
         return None

@@ -8,16 +8,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import dijkstra
-from scipy.spatial import cKDTree
-
 import ncedf.mppi as mppi_module
 import ncedf.route as route_module
 from ncedf.convex import fit_polytopes
 from ncedf.mppi import MPPI, ROUTE_CAPACITY, MPPIConfig
 from ncedf.robot import RobotSpec, sample_arc_lengths, validate_state
-from ncedf.route import RouteConfig, around, between, clearances, goal_states, lazy_shortest_path, plan_route, tips
+from ncedf.route import (RouteConfig, around, between, clearances, goal_states, lazy_shortest_path, plan_route,
+                         roadmap_edges, shortest_path, tips)
 from ncedf.shapes import make_shape
 from scenarios.world import Box, World, make_observer, true_distances_batch
 
@@ -65,44 +62,41 @@ def _roadmap(polytopes):
     free = drawn[clearances(drawn, SPEC, polytopes) >= ROUTE.node_clearance]
     targets = goal_states(free, GOAL, SPEC, polytopes, ROUTE)
     nodes = np.concatenate([START[None], free, targets])
-    length, near = cKDTree(nodes.reshape(len(nodes), -1)).query(nodes.reshape(len(nodes), -1), 9)
-    i, j, w = np.repeat(np.arange(len(nodes)), 8), near[:, 1:].ravel(), length[:, 1:].ravel()
-    once = i < j
-    return nodes, i[once], j[once], w[once], len(targets)
+    return (nodes, *roadmap_edges(nodes, 8), len(targets))
 
 
-def _shortest(nodes, i, j, w, ok, ends):
-    """The shortest path from node 0 to the nearest of ``ends`` over the edges ``ok``, or None."""
-    graph = coo_matrix((w[ok], (i[ok], j[ok])), shape=(len(nodes), len(nodes)))
-    dist, previous = dijkstra(graph, directed=False, indices=0, return_predecessors=True)
-    ends = ends[np.isfinite(dist[ends])]
-    if len(ends) == 0:
-        return None
-    path = [int(ends[np.argmin(dist[ends])])]
-    while path[-1] != 0:
-        path.append(int(previous[path[-1]]))
-    return path[::-1]
+def test_roadmap_edges_are_each_nodes_nearest_once():
+    nodes = np.random.default_rng(0).uniform(size=(60, 2, 3)).astype(np.float32)
+    i, j, w = roadmap_edges(nodes, 4)
+    flat = nodes.reshape(len(nodes), -1)
+    distance = np.linalg.norm(flat[:, None] - flat[None], axis=-1)
+    np.fill_diagonal(distance, np.inf)
+    nearest = np.argsort(distance, axis=1)[:, :4]  # brute force
+    expected = {(min(a, b), max(a, b)) for a in range(len(nodes)) for b in nearest[a]}
+    assert np.all(i < j) and len(set(zip(i.tolist(), j.tolist()))) == len(i)
+    assert set(zip(i.tolist(), j.tolist())) == expected  # listed by either node, kept once
+    np.testing.assert_allclose(w, distance[i, j], rtol=1e-5)
 
 
-@pytest.mark.parametrize("rounds", [route_module.LAZY_ROUNDS, 1])
+@pytest.mark.parametrize("rounds", [ROUTE.lazy_rounds, 1])
 def test_lazy_checks_find_the_path_that_checking_every_edge_finds(polytopes, monkeypatch, rounds):
     nodes, i, j, w, goals = _roadmap(polytopes)
     ok = route_module.edge_clearances(nodes[i], nodes[j], SPEC, polytopes, ROUTE.check_step) >= ROUTE.edge_clearance
     assert 0 < ok.sum() < len(ok)
     checked = []
     counted = route_module.edge_clearances
-    monkeypatch.setattr(route_module, "LAZY_ROUNDS", rounds)
     monkeypatch.setattr(route_module, "edge_clearances", lambda a, *rest: checked.append(len(a)) or counted(a, *rest))
-    expected = _shortest(nodes, i, j, w, ok, np.arange(len(nodes) - goals, len(nodes)))
+    config = dataclasses.replace(ROUTE, lazy_rounds=rounds)
+    expected = shortest_path(len(nodes), i[ok], j[ok], w[ok], np.arange(len(nodes) - goals, len(nodes)))
     assert expected is not None and len(expected) > 2
-    assert lazy_shortest_path(nodes, i, j, w, goals, SPEC, polytopes, ROUTE) == expected
+    assert lazy_shortest_path(nodes, i, j, w, goals, SPEC, polytopes, config) == expected
     # A goal state whose straight edge from the start meets the bar, and no other edge: no path.
     targets = nodes[len(nodes) - goals:]
     straight = counted(np.repeat(START[None], goals, axis=0), targets, SPEC, polytopes, ROUTE.check_step)
     blocked = targets[straight < ROUTE.edge_clearance]
     assert len(blocked) > 0
     pair = np.stack([START, blocked[0]])
-    assert lazy_shortest_path(pair, np.array([0]), np.array([1]), np.array([1.0]), 1, SPEC, polytopes, ROUTE) is None
+    assert lazy_shortest_path(pair, np.array([0]), np.array([1]), np.array([1.0]), 1, SPEC, polytopes, config) is None
     if rounds == 1:  # every edge checked at once after the first path
         assert checked[0] == len(i)
     else:
@@ -204,6 +198,8 @@ def test_route_settings_are_validated():
         MPPIConfig(convex_link=1.0, route_after=-1)
     with pytest.raises(ValueError, match="RouteConfig.samples"):
         RouteConfig(samples=0)
+    with pytest.raises(ValueError, match="RouteConfig.lazy_rounds"):
+        RouteConfig(lazy_rounds=0)
     with pytest.raises(ValueError, match="RouteConfig.local_radius"):
         RouteConfig(local_radius=0.0)
     with pytest.raises(ValueError, match="RouteConfig.check_step"):
