@@ -1,14 +1,14 @@
-"""Command-line argument types the benches share (``closed_loop.py``, ``paper_timing.py``),
-imported from their folder. They raise ``argparse.ArgumentTypeError``, which the parser
-reports in one line naming the option."""
+"""Command-line argument types the benches share, imported from their folder. They raise
+``argparse.ArgumentTypeError``, which the parser reports in one line naming the option."""
 
 from __future__ import annotations
 
 import argparse
 
 
-def parse_list(text: str, cast, name: str, allowed=None) -> list:
-    """The comma-separated values of ``text``, each ``cast``; non-empty, and each in ``allowed`` if given."""
+def parse_list(text: str, cast, name: str, allowed=None, above_zero: bool = False) -> list:
+    """The comma-separated values of ``text``, each ``cast``; non-empty, each in ``allowed`` if given,
+    and each > 0 if ``above_zero``."""
     try:
         values = [cast(v) for v in text.split(",") if v]
     except ValueError:
@@ -18,7 +18,14 @@ def parse_list(text: str, cast, name: str, allowed=None) -> list:
     bad = [v for v in values if allowed is not None and v not in allowed]
     if bad:
         raise argparse.ArgumentTypeError(f"unknown {name} {bad[0]!r}; choose from {', '.join(map(str, allowed))}")
+    if above_zero and any(v <= 0 for v in values):
+        raise argparse.ArgumentTypeError(f"{name} must be > 0, got {text!r}")
     return values
+
+
+def link_counts(text: str) -> list[int]:
+    """The link counts of the paper's cluttered scene in ``text`` (a subset of 4, 5, 7)."""
+    return parse_list(text, int, "link count", (4, 5, 7))
 
 
 def positive(text: str) -> int:

@@ -41,18 +41,20 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import sys
 import time
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from arguments import parse_list, positive
 from ncedf.broad_phase import SELECTIONS, rollout_min_distances_broad, rollout_min_distances_brute
 from ncedf.mppi import bounded_controls, sample_noise
 from ncedf.model import load_model
 from ncedf.robot import RobotSpec, sample_arc_lengths
 from ncedf.shapes import make_shape
+from recorder.cli import OneLineParser, exit_with
+from rows import print_rows
 from scenarios import cluttered
 from scenarios.presets import mppi_config
 from scenarios.world import make_observer, true_distances_batch
@@ -126,52 +128,30 @@ def compare(density: float, links: int, shape_name: str, args, model) -> list[di
     return rows
 
 
-def parse_list(text: str, cast, name: str) -> list:
-    try:
-        values = [cast(v) for v in text.split(",") if v.strip()]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"bad {name} list {text!r}") from None
-    if not values or any(v <= 0 for v in values):
-        raise argparse.ArgumentTypeError(f"{name} must be numbers > 0, got {text!r}")
-    return values
-
-
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], epilog=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--densities", default="4,16", type=lambda t: parse_list(t, float, "densities"),
+    p = OneLineParser(description=__doc__.split("\n\n")[0], epilog=__doc__,
+                      formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--densities", default="4,16", type=lambda t: parse_list(t, float, "densities", above_zero=True),
                    help="observed points per m^2 of box face (default 4,16)")
-    p.add_argument("--links", default="4,5,7", type=lambda t: parse_list(t, int, "links"),
+    p.add_argument("--links", default="4,5,7", type=lambda t: parse_list(t, int, "links", above_zero=True),
                    help="link counts (default 4,5,7)")
     p.add_argument("--shapes", default="exact,ncedf", help="representations (default exact,ncedf)")
-    p.add_argument("--states", type=int, default=4, help="states near the boxes per link count (default 4)")
-    p.add_argument("--repeats", type=int, default=3, help="timed broad-phase calls per state (default 3)")
+    p.add_argument("--states", type=positive, default=4, help="states near the boxes per link count (default 4)")
+    p.add_argument("--repeats", type=positive, default=3, help="timed broad-phase calls per state (default 3)")
     p.add_argument("--seed", type=int, default=0)
     args = p.parse_args(argv)
-    if args.states < 1 or args.repeats < 1:
-        p.error(f"--states and --repeats must be >= 1, got {args.states} and {args.repeats}")
     shapes = [s.strip() for s in args.shapes.split(",") if s.strip()]
     model = load_model() if "ncedf" in shapes else None
     print(f"jax {jax.__version__} on {jax.devices()[0].platform}; ours preset rollouts from {args.states} states "
           f"per link count with exact clearance {NEAR[0]}-{NEAR[1]} m to the boxes")
     print(f"{'density':>7} {'links':>5} {'shape':>8} {'selection':>9} {'points':>6} {'states':>7} {'agree':>7} "
           f"{'over 2cm':>8} {'max over':>8} {'broad ms':>9} {'brute ms':>9} {'ratio':>6}")
-    try:
-        for density in args.densities:
-            for links in args.links:
-                for shape_name in shapes:
-                    for r in compare(density, links, shape_name, args, model):
-                        print(f"{r['density']:>7g} {r['links']:>5} {r['shape']:>8} {r['selection']:>9} "
-                              f"{r['points']:>6} {r['states']:>7} {r['agree']:>7.4f} {r['over']:>8.4f} "
-                              f"{r['max_over']:>8.3f} {r['broad_ms']:>9.1f} {r['brute_ms']:>9.1f} "
-                              f"{r['brute_ms'] / r['broad_ms']:>6.1f}", flush=True)
-    except KeyboardInterrupt:
-        print("interrupted: the rows above are complete", file=sys.stderr)
-        return 130
-    return 0
+    groups = [(d, links, name) for d in args.densities for links in args.links for name in shapes]
+    return print_rows(groups, lambda group: [
+        f"{r['density']:>7g} {r['links']:>5} {r['shape']:>8} {r['selection']:>9} {r['points']:>6} {r['states']:>7} "
+        f"{r['agree']:>7.4f} {r['over']:>8.4f} {r['max_over']:>8.3f} {r['broad_ms']:>9.1f} {r['brute_ms']:>9.1f} "
+        f"{r['brute_ms'] / r['broad_ms']:>6.1f}" for r in compare(*group, args, model)])
 
 
 if __name__ == "__main__":
-    from recorder.cli import exit_with
-
     exit_with(main())

@@ -579,7 +579,7 @@ def main(argv=None) -> int:
                         "(default release,ours,paper)")
     p.add_argument("--scenarios", default="cluttered,spheres",
                    type=lambda t: parse_list(t, str, "scenario", ("cluttered", "spheres")))
-    p.add_argument("--links", default="4,5,7", type=lambda t: parse_list(t, int, "links"),
+    p.add_argument("--links", default="4,5,7", type=lambda t: parse_list(t, int, "links", above_zero=True),
                    help="cluttered link counts (default 4,5,7)")
     p.add_argument("--seeds", type=positive, default=3, help="cluttered controller seeds per link count (default 3)")
     p.add_argument("--seed0", type=int, default=0,

@@ -27,19 +27,19 @@ another and the form for all at once is the one used.
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from arguments import parse_list, positive
+from arguments import link_counts, positive
 from ncedf.convex import robot_clearance
 from ncedf.mppi import MPPI
 from ncedf.robot import RobotSpec, forward_kinematics, sample_arc_lengths
 from ncedf.shapes import make_shape
-from recorder.cli import EXIT_STATUS, OneLineParser, Stopped, exit_with, stop_on_signals
+from recorder.cli import OneLineParser, exit_with
+from rows import print_rows
 from scenarios import cluttered
 from scenarios.presets import mppi_config
 from scenarios.world import make_observer
@@ -85,7 +85,7 @@ def compare(links: int, args) -> dict:
 def main(argv=None) -> int:
     p = OneLineParser(description=__doc__.split("\n\n")[0], epilog=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--links", type=lambda s: parse_list(s, int, "link count", (4, 5, 7)), default=[4, 5, 7],
+    p.add_argument("--links", type=link_counts, default=[4, 5, 7],
                    help="link counts (comma-separated; default 4,5,7)")
     p.add_argument("--repeats", type=positive, default=10, help="timed calls per form (default 10)")
     p.add_argument("--seed", type=int, default=0, help="seed of the observation and the states (default 0)")
@@ -94,16 +94,9 @@ def main(argv=None) -> int:
     print(f"jax {jax.__version__} on {device.platform} ({device.device_kind}); cluttered world, ours preset sizes")
     print(f"{'links':>5} {'states':>7} {'clusters':>8} {'passes ms':>10} {'at once ms':>11} {'ratio':>6} "
           f"{'max diff m':>11}")
-    try:
-        with stop_on_signals():
-            for links in args.links:
-                r = compare(links, args)
-                print(f"{r['links']:>5} {r['states']:>7} {r['clusters']:>8} {r['passes']:>10.2f} "
-                      f"{r['at once']:>11.2f} {r['at once'] / r['passes']:>6.2f} {r['max_diff']:>11.1e}", flush=True)
-    except Stopped as stop:
-        print(f"interrupted ({stop}): the rows above are complete", file=sys.stderr)
-        return EXIT_STATUS[stop.signum]
-    return 0
+    return print_rows(args.links, lambda links: [
+        f"{r['links']:>5} {r['states']:>7} {r['clusters']:>8} {r['passes']:>10.2f} {r['at once']:>11.2f} "
+        f"{r['at once'] / r['passes']:>6.2f} {r['max_diff']:>11.1e}" for r in [compare(links, args)]])
 
 
 if __name__ == "__main__":

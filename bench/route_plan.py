@@ -28,17 +28,17 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import sys
 import time
 
 import jax
 import numpy as np
 
-from arguments import parse_list, positive
+from arguments import link_counts, positive
 from ncedf import route
 from ncedf.convex import fit_polytopes
 from ncedf.robot import RobotSpec, sample_arc_lengths
-from recorder.cli import EXIT_STATUS, OneLineParser, Stopped, exit_with, stop_on_signals
+from recorder.cli import OneLineParser, exit_with
+from rows import print_rows
 from scenarios import cluttered
 from scenarios.presets import CONVEX_LINK
 from scenarios.world import World, make_observer
@@ -91,7 +91,7 @@ def compare(links: int, args) -> dict:
 def main(argv=None) -> int:
     p = OneLineParser(description=__doc__.split("\n\n")[0], epilog=__doc__,
                       formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--links", type=lambda s: parse_list(s, int, "link count", (4, 5, 7)), default=[4, 5, 7],
+    p.add_argument("--links", type=link_counts, default=[4, 5, 7],
                    help="link counts (comma-separated; default 4,5,7)")
     p.add_argument("--starts", type=positive, default=5, help="start states per link count (default 5)")
     p.add_argument("--seed", type=int, default=0, help="seed of the observation, starts and plans (default 0)")
@@ -100,19 +100,16 @@ def main(argv=None) -> int:
     print(f"jax {jax.__version__} on {device.platform} ({device.device_kind}); cluttered scene, its goal")
     print(f"{'links':>5} {'starts':>6} {'routes':>6} {'lazy s':>7} {'(max)':>6} {'eager s':>8} {'eager/lazy':>10} "
           f"{'same':>5}")
-    try:
-        with stop_on_signals():
-            for links in args.links:
-                try:
-                    r = compare(links, args)
-                except ValueError as err:
-                    p.error(str(err))
-                print(f"{r['links']:>5} {args.starts:>6} {r['found']:>6} {r['lazy']:>7.2f} {r['lazy_max']:>6.2f} "
-                      f"{r['eager']:>8.2f} {r['eager'] / r['lazy']:>10.2f} {r['same']:>5}", flush=True)
-    except Stopped as stop:
-        print(f"interrupted ({stop}): the rows above are complete", file=sys.stderr)
-        return EXIT_STATUS[stop.signum]
-    return 0
+
+    def lines(links):
+        try:
+            r = compare(links, args)
+        except ValueError as err:
+            p.error(str(err))
+        return [f"{r['links']:>5} {args.starts:>6} {r['found']:>6} {r['lazy']:>7.2f} {r['lazy_max']:>6.2f} "
+                f"{r['eager']:>8.2f} {r['eager'] / r['lazy']:>10.2f} {r['same']:>5}"]
+
+    return print_rows(args.links, lines)
 
 
 if __name__ == "__main__":
