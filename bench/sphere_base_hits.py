@@ -9,6 +9,16 @@ which a sphere overlaps the base disk, sampled every ``--dt`` seconds over the
 episode's step budget; a sampled overlap is a real one (a lower bound on the
 unavoidable collisions: overlaps shorter than ``--dt`` are missed).
 
+Such an overlap is certain to end the episode in a collision when no motion
+reaches the goal before it: with the hit in step k (at a time in ((k - 1) dt,
+k dt]), the goal must be reached by step k - 1. For each hit this asks
+``scenarios.oracle.closest_approach`` for the closest the end effector comes
+within k - 1 steps, over every rate sequence of the control set (the release's,
+which the oracle searches: two free rates per link within +-0.3 m/s, the
+third minus their sum), and counts the environment as certain when that is
+farther than the goal tolerance. That is a numerical minimum (its starts
+agree to millimetres here), so "certain" holds up to its few millimetres.
+
 With ``--runs FOLDER`` (recordings of ``scenarios.sweep``/``reproduce``), it also
 lists the environments where the recorded episodes collided, the earliest
 reach step of any successful episode there, and how many collisions fall in
@@ -29,10 +39,13 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from ncedf.mppi import MPPIConfig  # noqa: E402
+import jax  # noqa: E402
+
 from ncedf.robot import RobotSpec  # noqa: E402
 from recorder.cli import OneLineParser, exit_with  # noqa: E402
 from scenarios.episode import goal_text  # noqa: E402
-from scenarios.spheres import MAX_STEPS, make_environment  # noqa: E402
+from scenarios.oracle import OracleConfig, closest_approach  # noqa: E402
+from scenarios.spheres import MAX_STEPS, TOLERANCE, make_environment  # noqa: E402
 from scenarios.world import World  # noqa: E402
 
 #: Control step of the scenarios, s (every preset keeps the default).
@@ -58,6 +71,30 @@ def first_base_hit(world: World, spec: RobotSpec, horizon: float, dt: float) -> 
     return float(times[np.argmax(hit)]) if hit.any() else None
 
 
+class Reach:
+    """Whether the goal can be reached within a number of steps, per goal, from as few searches as the
+    nesting of the reachable sets allows (reachable within k implies within every k' > k)."""
+
+    def __init__(self, spec: RobotSpec, config: OracleConfig):
+        self.spec, self.config = spec, config
+        self.reached: dict[tuple, int] = {}  # goal -> smallest steps found to reach it
+        self.missed: dict[tuple, tuple[int, float]] = {}  # goal -> (largest steps found short, closest, m)
+
+    def within(self, goal, steps: int) -> tuple[bool, float]:
+        """(reachable within ``steps`` steps, the closest approach, m; nan where the nesting answered)."""
+        key = tuple(float(g) for g in goal)
+        if steps < 1 or steps <= self.missed.get(key, (0, np.nan))[0]:
+            return False, np.nan
+        if steps >= self.reached.get(key, np.inf):
+            return True, np.nan
+        closest = closest_approach(self.spec, goal, steps, STEP_DT, jax.random.PRNGKey(steps), self.config)
+        if closest <= TOLERANCE:
+            self.reached[key] = min(steps, self.reached.get(key, steps))
+        else:
+            self.missed[key] = (steps, closest)
+        return closest <= TOLERANCE, closest
+
+
 def main(argv=None) -> int:
     p = OneLineParser(prog="python bench/sphere_base_hits.py", description=__doc__.split("\n\n")[0])
     p.add_argument("--envs", type=int, default=200, help="environments 0..N-1 (default 200)")
@@ -65,18 +102,31 @@ def main(argv=None) -> int:
                    help="goal kind or position, m (--goal=-4,0,4 when X is negative; default fixed)")
     p.add_argument("--dt", type=float, default=0.005, help="time sampling, s (default 0.005)")
     p.add_argument("--runs", help="folder of sphere recordings to compare with")
+    p.add_argument("--starts", type=int, default=64, help="starts of each closest-approach search (default 64)")
     args = p.parse_args(argv)
-    if args.envs < 1 or args.dt <= 0:
-        p.error(f"--envs must be >= 1 and --dt > 0, got {args.envs} and {args.dt}")
+    if args.envs < 1 or args.dt <= 0 or args.starts < 1:
+        p.error(f"--envs and --starts must be >= 1 and --dt > 0, got {args.envs}, {args.starts} and {args.dt}")
     spec = RobotSpec(4)
-    hits = {}
+    hits, goals = {}, {}
     for env in range(args.envs):
-        world, _, _ = make_environment(env, spec, args.goal)
+        world, goals[env], _ = make_environment(env, spec, args.goal)
         t = first_base_hit(world, spec, MAX_STEPS * STEP_DT, args.dt)
         if t is not None:
             hits[env] = t
     print(f"{args.goal} goal: {len(hits)} of {args.envs} environments have a sphere through the base disk:")
     print("  " + ", ".join(f"env {e} at {t:.3f} s (step {t / STEP_DT:.1f})" for e, t in hits.items()))
+    reach, certain = Reach(spec, OracleConfig(starts=args.starts)), []
+    for env, t in hits.items():
+        # the sampled time is at or after the overlap's start, so this deadline is never too early
+        deadline = int(np.ceil(t / STEP_DT - 1e-9)) - 1
+        reachable, closest = reach.within(goals[env], deadline)
+        if not reachable:
+            certain.append(env)
+            print(f"  env {env}: hit in step {deadline + 1}; within {deadline} steps the end effector comes no "
+                  f"closer than {'(as for a later deadline)' if np.isnan(closest) else f'{closest:.3f} m'} "
+                  f"to the goal (tolerance {TOLERANCE} m)", flush=True)
+    print(f"certain collisions (no motion reaches the goal before the hit): {len(certain)} of {args.envs} "
+          f"({len(certain) / args.envs:.3f}) {certain}")
     if args.runs:
         from recorder.read import load_summaries
 

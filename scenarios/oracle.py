@@ -19,6 +19,12 @@ parallel: ``|p_ee(x_T) - g| + penalty * relu(clearance - softmin_s d_s)``, with
 ``substeps`` instants per step (the arc lengths interpolated linearly, as the
 judge does) and the soft minimum at temperature ``softness``.
 
+Without spheres the same search gives the closest approach to a goal within a
+number of steps (:func:`closest_approach`): staying still is in the control
+set, so the states reachable within k steps are those reachable in exactly k,
+and a motion that reaches the goal no earlier than step k + 1 collides with a
+sphere that sits on the robot's base by then, whatever its rates.
+
 A motion counts only after the episodes' exact judge
 (:func:`scenarios.world.judge_step`) has passed every step from the start to
 its first state within the goal tolerance, where an episode would end.
@@ -169,6 +175,31 @@ def optimise(spec: RobotSpec, config: OracleConfig, dt: float, z0: jnp.ndarray, 
         return rollout(z, spec, dt, c.control_bound)
 
     return jax.vmap(descend)(z0)
+
+
+def closest_approach(spec: RobotSpec, goal, steps: int, dt: float, key,
+                     config: OracleConfig = OracleConfig()) -> float:
+    """Smallest end-effector distance to ``goal`` over the motions of ``steps`` steps (no obstacles), m.
+
+    Every state of every optimised motion counts, so this is the closest the
+    search brings the end effector within ``steps`` steps from the straight
+    robot. A numerical minimum from ``config.starts`` starts (an upper bound on
+    the true one; the starts agree to millimetres in the spheres' scene).
+
+    Args:
+      goal: (3,) position, m.  steps: >= 1.  dt: step, s.  key: PRNG key of the starts.
+    Raises:
+      ValueError naming the bad value.
+    """
+    goal = np.asarray(goal, np.float32)
+    if goal.shape != (3,):
+        raise ValueError(f"closest_approach takes a position goal (3,), got shape {goal.shape}")
+    if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
+        raise ValueError(f"steps must be an integer >= 1, got {steps!r}")
+    z0 = jax.random.normal(key, (config.starts, steps, spec.n_links, 2))
+    no_spheres = jnp.zeros((steps * config.substeps + 1, 0, 3), jnp.float32)
+    motions = optimise(spec, config, dt, z0, no_spheres, jnp.zeros((0,), jnp.float32), jnp.asarray(goal))
+    return float(np.min(np.linalg.norm(np.asarray(_tips(spec, motions)) - goal, axis=-1)))
 
 
 def _judged(world: World, spec: RobotSpec, arcs: np.ndarray, dt: float) -> float | None:
