@@ -359,6 +359,17 @@ kind): fixed goal 196 / 4 / 0, the 4 collisions exactly the environments
 where the oracle finds no motion (45, 53, 64, 93); random goals 196 / 4 / 0
 (25, 53, 75, 158); median reach 11 and 12 steps.
 
+Predicted sphere motion on top of ``ours`` (``ours+motion``: the rollouts see
+each observed centre moved at its velocity from the last two observations;
+2026-12-02, ``--variants ours+motion --scenarios spheres --envs 200 --goals
+fixed,random``, beside ``--variants ours`` in the same session): fixed goal
+194 / 6 / 0 (ours 195 / 5 / 0), random goals 196 / 4 / 0 (ours 197 / 3 / 0),
+median reach 10 and 12 either way. It collided where ``ours`` did and in
+fixed 25 and random 72 besides. Random 75, where ``ours`` collides at step
+26 (its goal 6.8 m out at z = 0.7 m; a sphere runs at the first link above
+the base while the robot, stretched towards the goal, holds on), collided at
+step 28 with it. Not kept.
+
 ``--timing 8`` with the surface model: L4 131.4 / 111.1 ms (1.18), L7 58.5 /
 41.2 (1.42), spheres 84.3 / 80.8 (1.04) (before it: L4 64.8 / 62.8 (1.03),
 L5 147.8 / 136.3 (1.08), L7 47.8 / 47.9 (1.00), spheres 87.4 / 85.1 (1.03),
