@@ -113,7 +113,7 @@ clearance 0.016 m (5 links, (4.8, -1.5, 3.6), seed 1: a route move and the
 hold both refused while sphere 0 passed, so MPPI's checked action ran; without
 the route 0.074 m over those 30). The route avoids the static boxes only;
 each of its moves sees the moving spheres through the safety check. A plan
-takes about 1 s on this CPU, up to 6 s where its lazy edge search falls back
+takes 0.4-0.8 s on this CPU, up to 3.4 s where its lazy edge search falls back
 to every edge (``ncedf.route``), and that step's solver time includes it; its
 programs compile before the episode (``MPPI.warm_up``). Until then (the
 figures above) a plan took 3-18 s and the first compiled mid-episode. With
