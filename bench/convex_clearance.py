@@ -94,9 +94,13 @@ def main(argv=None) -> int:
     print(f"jax {jax.__version__} on {device.platform} ({device.device_kind}); cluttered world, ours preset sizes")
     print(f"{'links':>5} {'states':>7} {'clusters':>8} {'passes ms':>10} {'at once ms':>11} {'ratio':>6} "
           f"{'max diff m':>11}")
-    return print_rows(args.links, lambda links: [
-        f"{r['links']:>5} {r['states']:>7} {r['clusters']:>8} {r['passes']:>10.2f} {r['at once']:>11.2f} "
-        f"{r['at once'] / r['passes']:>6.2f} {r['max_diff']:>11.1e}" for r in [compare(links, args)]])
+
+    def lines(links):
+        r = compare(links, args)
+        return [f"{r['links']:>5} {r['states']:>7} {r['clusters']:>8} {r['passes']:>10.2f} {r['at once']:>11.2f} "
+                f"{r['at once'] / r['passes']:>6.2f} {r['max_diff']:>11.1e}"]
+
+    return print_rows(args.links, lines)
 
 
 if __name__ == "__main__":

@@ -911,7 +911,7 @@ class MPPI:
         ``step``'s; results discarded): the step itself and, with ``route_after``, the route's programs,
         through a plan to where the robot's tip already is and the check of a route's moves. A route's
         first plan would otherwise compile mid-episode (23-33 s on a loaded 2-core CPU, where a warm plan
-        takes 1-2 s)."""
+        takes 0.4-0.8 s: ``bench/route_plan.py``)."""
         jax.block_until_ready(self.step(state, arc, goal, obstacle_points))
         goal = self.check_goal(goal)
         if not (self.config.route_after and goal.shape == (3,)):

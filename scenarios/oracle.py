@@ -177,6 +177,14 @@ def optimise(spec: RobotSpec, config: OracleConfig, dt: float, z0: jnp.ndarray, 
     return jax.vmap(descend)(z0)
 
 
+def _position_goal(goal) -> np.ndarray:
+    """``goal`` as a (3,) float64 position, m; ValueError naming its shape otherwise."""
+    goal = np.asarray(goal, np.float64)
+    if goal.shape != (3,):
+        raise ValueError(f"the oracle takes a position goal (3,), got shape {goal.shape}")
+    return goal
+
+
 def closest_approach(spec: RobotSpec, goal, steps: int, dt: float, key,
                      config: OracleConfig = OracleConfig()) -> float:
     """Smallest end-effector distance to ``goal`` over the motions of ``steps`` steps (no obstacles), m.
@@ -191,9 +199,7 @@ def closest_approach(spec: RobotSpec, goal, steps: int, dt: float, key,
     Raises:
       ValueError naming the bad value.
     """
-    goal = np.asarray(goal, np.float32)
-    if goal.shape != (3,):
-        raise ValueError(f"closest_approach takes a position goal (3,), got shape {goal.shape}")
+    goal = _position_goal(goal).astype(np.float32)
     if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
         raise ValueError(f"steps must be an integer >= 1, got {steps!r}")
     z0 = jax.random.normal(key, (config.starts, steps, spec.n_links, 2))
@@ -226,9 +232,7 @@ def plan_reach(world: World, spec: RobotSpec, goal, tolerance: float, horizons, 
     """
     if world.boxes or world.meshes or world.clouds:
         raise ValueError("the oracle models moving spheres only; this world has static obstacles")
-    goal = np.asarray(goal, np.float64)
-    if goal.shape != (3,):
-        raise ValueError(f"the oracle takes a position goal (3,), got shape {goal.shape}")
+    goal = _position_goal(goal)
     horizons = sorted({int(h) for h in horizons})
     if not horizons or horizons[0] < 1:
         raise ValueError(f"horizons must be >= 1, got {horizons}")
