@@ -6,8 +6,8 @@
 Scene: the paper's cluttered environment as ``scenarios.cluttered`` defines it
 (Sec. VI-D; three boxes, points on their faces, two spheres of 30 surface points)
 at t = 0, observed with about ``--points`` points, and its goal. The robot runs
-closed loop from the straight state with the broad-phase controller; the brute-force controller (``broad_phase=False``) is
-then run on the first ``--ref-steps`` of the same inputs (state, plan, key), so
+closed loop from the straight state with the broad-phase controller; the brute-force
+controller (``broad_phase=False``) is then run on the first ``--ref-steps`` of the same inputs (state, plan, key), so
 both see identical samples. Reported per (links, representation):
 
   median / p95 step time of the broad phase over ``--steps`` steps after
@@ -184,13 +184,15 @@ def closed_loop(args, model):
 
 HEADER = (
     f"{'links':>5} {'representation':<16} {'H':>3} {'median ms':>10} {'p95 ms':>8} {'compile s':>9} "
-    f"{'brute ms':>9} {'n':>2} {'brute/bp':>9} {'same':>8} {'<=1e-5':>8} {'max |dd| m':>10} {'d action':>9} {'d plan':>9}"
+    f"{'brute ms':>9} {'n':>2} {'brute/bp':>9} {'same':>8} {'<=1e-5':>8} {'max |dd| m':>10} "
+    f"{'d action':>9} {'d plan':>9}"
 )
 
 
 def fmt(r):
     return (
-        f"{r['links']:>5} {r['rep']:<16} {r['H']:>3} {1e3 * r['med']:>10.1f} {1e3 * r['p95']:>8.1f} {r['compile']:>9.1f} "
+        f"{r['links']:>5} {r['rep']:<16} {r['H']:>3} {1e3 * r['med']:>10.1f} {1e3 * r['p95']:>8.1f} "
+        f"{r['compile']:>9.1f} "
         f"{1e3 * r['ref_med']:>9.0f} {r['ref_n']:>2} {r['ratio']:>9.1f} {100 * r['same_exact']:>7.3f}% "
         f"{100 * r['same_tol']:>7.3f}% {r['max_diff']:>10.2e} {r['d_action']:>9.1e} {r['d_plan']:>9.1e}"
     )
@@ -210,7 +212,8 @@ def main(argv=None):
     p.add_argument("--steps", type=int, default=20, help="timed broad-phase steps after compilation")
     p.add_argument("--ref-steps", type=int, default=2, help="timed brute-force steps (same inputs), >= 2")
     p.add_argument("--reps", default=DEFAULT_REPS,
-                   help=f"default {DEFAULT_REPS}; add pointcloud:5000 explicitly (its brute force takes minutes per step)")
+                   help=f"default {DEFAULT_REPS}; add pointcloud:5000 explicitly "
+                        "(its brute force takes minutes per step)")
     p.add_argument("--k1", type=int, default=MPPIConfig.k1)
     p.add_argument("--k2", type=int, default=MPPIConfig.k2)
     p.add_argument("--model", default=None, help="N-CEDF weights (default: the shipped model)")
@@ -229,7 +232,8 @@ def main(argv=None):
         args.cl_samples, args.cl_points, args.cl_steps = 64, 40, 10
     args.ref_steps = max(2, min(args.ref_steps, args.steps))
     # pointcloud:5000's brute force takes minutes per step: 2 reference steps at most.
-    args.ref_steps_for = lambda rep: 2 if rep.startswith("pointcloud:") and int(rep.split(":")[1]) > 2000 else args.ref_steps
+    args.ref_steps_for = lambda rep: (2 if rep.startswith("pointcloud:") and int(rep.split(":")[1]) > 2000
+                                      else args.ref_steps)
     reps = [r.strip() for r in args.reps.split(",") if r.strip()]
 
     model = None

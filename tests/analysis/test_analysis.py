@@ -1,9 +1,9 @@
 """analysis/make_tables.py and make_figures.py on a small folder of real recordings.
 
 The folder: tiny dynamic-sphere episodes (16 rollouts, horizon 3; environments 0-4 end in a mix
-of outcomes; one more at a goal position), four tiny cluttered episodes (one at a sparser cloud, one with another goal), and
-two tiny networks trained and timed by scenarios.reproduce (Table II: with and without the
-over-estimation loss). The CSV numbers are checked against values computed here from what the
+of outcomes; one more at a goal position), four tiny cluttered episodes (one at a sparser cloud, one
+with another goal), and two tiny networks trained and timed by scenarios.reproduce (Table II: with
+and without the over-estimation loss). The CSV numbers are checked against values computed here from what the
 episodes returned (EpisodeResult) and from the saved weights evaluated again, not from the
 recordings the scripts read.
 """

@@ -177,7 +177,8 @@ def capped_cylinder_sd(p):
 
 def test_straight_link_is_capped_cylinder():
     rng = np.random.default_rng(12)
-    pts = np.concatenate([rng.uniform([-0.5, -0.5, -0.5], [0.5, 0.5, 2.5], (3000, 3)), query_points(0.0, 0.0, rng, 500)])
+    pts = np.concatenate([rng.uniform([-0.5, -0.5, -0.5], [0.5, 0.5, 2.5], (3000, 3)),
+                          query_points(0.0, 0.0, rng, 500)])
     ref = capped_cylinder_sd(pts)
     for phi in (0.0, 1.3, -3.0):
         sd = link_distance(pts, 0.0, phi)

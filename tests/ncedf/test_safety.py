@@ -263,9 +263,11 @@ def test_goal_cost_of_the_selected_rollout(goal_reach):
 
 
 def test_new_options_are_validated():
-    for field, value in [("sampling", "free"), ("goal_reach", 1), ("update_unclipped", "yes"), ("noise_smoothing", 1.0), ("target_ess", 0.0), ("target_ess", 2.0),
+    for field, value in [("sampling", "free"), ("goal_reach", 1), ("update_unclipped", "yes"), ("noise_smoothing", 1.0),
+                         ("target_ess", 0.0), ("target_ess", 2.0),
                          ("safety_check", 1), ("check_substeps", 0), ("check_margin", -0.1),
-                         ("predict_motion", "yes"), ("sweep_first", 1), ("follow_executed", 1), ("stall_steps", -1), ("stall_steps", 2.0),
+                         ("predict_motion", "yes"), ("sweep_first", 1), ("follow_executed", 1), ("stall_steps", -1),
+                         ("stall_steps", 2.0),
                          ("stall_ess", 0.0),
                          ("stall_progress", 0.0)]:
         with pytest.raises(ValueError, match=field):

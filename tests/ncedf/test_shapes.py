@@ -25,7 +25,8 @@ def _arcs(seed, n):
 def _points_near(seed, arc, n=400, spread=0.8):
     """World points around the robot's surface (some inside, most outside)."""
     k1, k2 = jax.random.split(jax.random.PRNGKey(seed))
-    coords = jnp.stack([sample_surface_coords(k, n // SPEC.n_links, 0.0, SPEC) for k in jax.random.split(k1, SPEC.n_links)])
+    coords = jnp.stack([sample_surface_coords(k, n // SPEC.n_links, 0.0, SPEC)
+                        for k in jax.random.split(k1, SPEC.n_links)])
     surf = robot_surface_points(coords, arc, SPEC).reshape(-1, 3)
     return surf + spread * jax.random.normal(k2, surf.shape)
 
@@ -110,7 +111,8 @@ def test_pair_and_batch_forms_agree(name):
         full = jax.vmap(lambda a: shape.link_distances(pts, a))(arcs)  # (B, M, P)
         pair = jax.vmap(lambda a: shape.pair_distances(shape.prepare(a), pts, link))(arcs)
         batched = shape.state_pair_distances(arcs, jax.vmap(lambda a: shape.prepare(a).frames)(arcs),
-                                             jnp.broadcast_to(pts, (2,) + pts.shape), jnp.broadcast_to(link, (2,) + link.shape))
+                                             jnp.broadcast_to(pts, (2,) + pts.shape),
+                                             jnp.broadcast_to(link, (2,) + link.shape))
         mins = jax.vmap(shape.min_distance, in_axes=(None, 0))(pts, arcs)
         return full, pair, batched, mins
 

@@ -20,7 +20,8 @@ def _cache(tmp_path, monkeypatch):
 
 def _linear_params(w, b):
     """A one-layer (linear) network: out = w . x + b."""
-    return {"params": {"Dense_0": {"kernel": jnp.asarray(w, jnp.float32)[:, None], "bias": jnp.array([b], jnp.float32)}}}
+    return {"params": {"Dense_0": {"kernel": jnp.asarray(w, jnp.float32)[:, None],
+                                   "bias": jnp.array([b], jnp.float32)}}}
 
 
 def test_loss_terms_match_closed_forms_on_a_linear_network():
