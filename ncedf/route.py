@@ -148,7 +148,7 @@ def around(start: jnp.ndarray, key, spec: RobotSpec, count: int, radius: float) 
 @functools.partial(jax.jit, static_argnums=(2, 3, 4, 5))
 def _refine(arcs: jnp.ndarray, goal: jnp.ndarray, spec: RobotSpec, iterations: int, damping: float,
             move: float) -> jnp.ndarray:
-    """(K, M, 3) states (K, M, 3) moved towards a tip at ``goal`` (3,) m by damped least squares
+    """States ``arcs`` (K, M, 3), m, moved towards a tip at ``goal`` (3,) m by damped least squares
     (Levenberg-Marquardt with a fixed damping): each iteration moves a state by
     ``-J^T (J J^T + damping^2 I)^-1 e``, with e the tip error (3,) and J (3, 3M) the tip's Jacobian
     on arc changes that keep each link's sum, scaled so that no arc length moves more than ``move``
