@@ -242,11 +242,13 @@ class Scene:
     info: dict = dataclasses.field(default_factory=dict)
 
 
-def make_scene(settings: EpisodeSettings, world, goal, tolerance: float, max_steps: int, **info) -> Scene:
+def make_scene(settings: EpisodeSettings, world, goal, tolerance: float, max_steps: int,
+               preset_scenario: str | None = None, **info) -> Scene:
     """Assemble a Scene: observer from ``env_seed``, robot, controller preset sized to the cloud.
 
     ``settings.max_steps`` overrides ``max_steps``; a (4, 4) goal is a pose goal
-    (judged with ``ANGLE_TOLERANCE``).
+    (judged with ``ANGLE_TOLERANCE``). ``preset_scenario``: the scenario whose
+    preset fields the controller takes (``scenarios.presets``; None = ``settings.scenario``).
     """
     goal = np.asarray(goal, dtype=np.float64)
     if goal.shape not in ((3,), (4, 4)) or not np.all(np.isfinite(goal)):
@@ -255,7 +257,8 @@ def make_scene(settings: EpisodeSettings, world, goal, tolerance: float, max_ste
         raise ValueError(f"goal tolerance must be > 0, got {tolerance}")
     observer = world_mod.make_observer(world, settings.env_seed)
     spec = RobotSpec(settings.links)
-    config = mppi_config(settings.controller, settings.scenario, settings.links, n_points=observer.n_points,
+    config = mppi_config(settings.controller, preset_scenario or settings.scenario, settings.links,
+                         n_points=observer.n_points,
                          margin_extra=world.margin_extra, samples=settings.samples, horizon=settings.horizon)
     return Scene(world=world, observer=observer, goal=goal, tolerance=float(tolerance),
                  max_steps=settings.max_steps or max_steps, spec=spec, config=config,

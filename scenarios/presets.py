@@ -81,7 +81,9 @@ horizons as the release. Per scenario (``scenario_fields``):
   times, through the holes of the cloud (``bench/closed_loop.py``
   docstring). The model assumes convex obstacles (a cluster's concavities
   are closed), so it is not used in the other scenarios (the charging
-  station and custom worlds may hold non-convex meshes). At 16 points per
+  station and custom worlds may hold non-convex meshes), except by a custom
+  world whose mesh is closed and convex, which takes this scene's fields
+  (``scenarios.custom``). At 16 points per
   m^2 (``--option density=16``, 20 seeds): 20 / 20 / 20 successes, no
   collision, median reach 103.5 / 26 / 12.
 

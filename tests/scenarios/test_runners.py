@@ -219,6 +219,33 @@ def test_charging_goal_is_a_pose_approaching_along_x():
     assert scene.config.max_points >= scene.observer.n_points
 
 
+def test_a_custom_convex_mesh_gets_the_cluttered_scenes_controller_fields(tmp_path):
+    import trimesh
+
+    box = trimesh.creation.box(extents=(1.0, 3.0, 2.0))
+    open_box = trimesh.Trimesh(box.vertices, box.faces[:-2])  # one face's two triangles removed
+    ring = trimesh.creation.torus(major_radius=1.2, minor_radius=0.3)
+    files = {"box": tmp_path / "box.stl", "open": tmp_path / "open.stl", "ring": tmp_path / "ring.stl",
+             "cloud": tmp_path / "cloud.npy"}
+    box.export(files["box"])
+    open_box.export(files["open"])
+    ring.export(files["ring"])
+    np.save(files["cloud"], np.asarray(box.vertices))  # the box's corners as a bare cloud
+
+    def scene(name, controller="ours"):
+        options = (("goal_position", "4,0,4"), ("obstacles", str(files[name])), ("offset", "3,0,3"))
+        return Episode(EpisodeSettings("custom", 4, 0, controller=controller, shape="exact", options=options)).scene
+
+    for name, convex in [("box", True), ("open", False), ("ring", False), ("cloud", False)]:
+        s = scene(name)
+        assert s.info["convex_mesh"] is convex, name
+        expected = mppi_config("ours", "cluttered" if convex else "custom", 4, n_points=s.observer.n_points)
+        assert s.config == expected, name
+    assert scene("box").config.convex_link > 0 and scene("ring").config.convex_link == 0
+    release = scene("box", "release")  # the release has no fields per scenario: the same either way
+    assert release.config == mppi_config("release", "custom", 4, n_points=release.observer.n_points)
+
+
 @pytest.mark.parametrize("links, env_seed", [(4, 0), (5, 8)])
 def test_cluttered_random_goal_is_reachable_behind_the_boxes_and_clear_of_them(links, env_seed):
     spec = RobotSpec(links)
