@@ -258,8 +258,8 @@ def make_scene(settings: EpisodeSettings, world, goal, tolerance: float, max_ste
     observer = world_mod.make_observer(world, settings.env_seed)
     spec = RobotSpec(settings.links)
     config = mppi_config(settings.controller, preset_scenario or settings.scenario, settings.links,
-                         n_points=observer.n_points,
-                         margin_extra=world.margin_extra, samples=settings.samples, horizon=settings.horizon)
+                         n_points=observer.n_points, margin_extra=world.margin_extra, samples=settings.samples,
+                         horizon=settings.horizon)
     return Scene(world=world, observer=observer, goal=goal, tolerance=float(tolerance),
                  max_steps=settings.max_steps or max_steps, spec=spec, config=config,
                  angle_tolerance=ANGLE_TOLERANCE if goal.shape == (4, 4) else None, info=info)

@@ -236,12 +236,13 @@ def test_a_custom_convex_mesh_gets_the_cluttered_scenes_controller_fields(tmp_pa
         options = (("goal_position", "4,0,4"), ("obstacles", str(files[name])), ("offset", "3,0,3"))
         return Episode(EpisodeSettings("custom", 4, 0, controller=controller, shape="exact", options=options)).scene
 
+    scenes = {name: scene(name) for name in files}
     for name, convex in [("box", True), ("open", False), ("ring", False), ("cloud", False)]:
-        s = scene(name)
+        s = scenes[name]
         assert s.info["convex_mesh"] is convex, name
         expected = mppi_config("ours", "cluttered" if convex else "custom", 4, n_points=s.observer.n_points)
         assert s.config == expected, name
-    assert scene("box").config.convex_link > 0 and scene("ring").config.convex_link == 0
+    assert scenes["box"].config.convex_link > 0 and scenes["ring"].config.convex_link == 0
     release = scene("box", "release")  # the release has no fields per scenario: the same either way
     assert release.config == mppi_config("release", "custom", 4, n_points=release.observer.n_points)
 
