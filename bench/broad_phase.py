@@ -49,14 +49,14 @@ import numpy as np
 
 from arguments import parse_list, positive
 from ncedf.broad_phase import SELECTIONS, rollout_min_distances_broad, rollout_min_distances_brute
-from ncedf.mppi import bounded_controls, sample_noise
+from ncedf.sampling import bounded_controls, sample_noise
 from ncedf.model import load_model
 from ncedf.robot import RobotSpec, sample_arc_lengths
 from ncedf.shapes import make_shape
 from recorder.cli import OneLineParser, exit_with
 from rows import print_rows
 from scenarios import cluttered
-from scenarios.presets import mppi_config
+from ncedf.presets import Observation, ours
 from scenarios.world import make_observer, true_distances_batch
 
 #: Clearance band of the sampled states, m.
@@ -81,11 +81,13 @@ def near_states(spec: RobotSpec, count: int, seed: int) -> np.ndarray:
     raise RuntimeError(f"only {len(found)} states near the boxes after 50 draws")
 
 
-def rollouts(spec: RobotSpec, config, state: np.ndarray, key) -> jnp.ndarray:
-    """(N, H, M, 3) rollout states of ``config`` from ``state`` with a zero nominal."""
-    nominal = jnp.zeros((config.horizon, spec.n_links, 3), jnp.float32)
-    u = bounded_controls(config, nominal[None] + sample_noise(config, key, nominal.shape, jnp.float32))
-    return jnp.asarray(state, jnp.float32) + config.dt * jnp.cumsum(u, axis=1)
+def rollouts(spec: RobotSpec, controller, state: np.ndarray, key) -> jnp.ndarray:
+    """(N, H, M, 3) rollout states of the ControllerConfig ``controller`` from ``state`` with a zero plan."""
+    c, sampling = controller.mppi, controller.sampling
+    nominal = jnp.zeros((c.horizon, spec.n_links, 3), jnp.float32)
+    noise = sample_noise(sampling, c.covariance, c.samples, key, nominal.shape, jnp.float32)
+    u = bounded_controls(sampling, c.control_bound, nominal[None] + noise)
+    return jnp.asarray(state, jnp.float32) + c.dt * jnp.cumsum(u, axis=1)
 
 
 def timed(fn, arg, repeats: int) -> tuple[np.ndarray, float]:
@@ -100,18 +102,19 @@ def compare(density: float, links: int, shape_name: str, args, model) -> list[di
     """One row per selection (``ncedf.broad_phase.SELECTIONS``) against brute force on the same rollouts."""
     spec = RobotSpec(links)
     cloud = make_observer(cluttered.make_world(density), args.seed).observe(0.0)
-    config = mppi_config("ours", "cluttered", links, n_points=len(cloud))
+    controller = ours(spec, Observation(len(cloud)))
+    config, broad_phase = controller.mppi, controller.broad_phase
     points = jnp.zeros((config.max_points, 3), jnp.float32).at[: len(cloud)].set(jnp.asarray(cloud, jnp.float32))
     mask = jnp.arange(config.max_points) < len(cloud)
     shape = make_shape(shape_name, spec, model=model if shape_name == "ncedf" else None)
     brute = jax.jit(lambda a: rollout_min_distances_brute(shape, a, points, mask))
     broad = {s: jax.jit(lambda a, s=s: rollout_min_distances_broad(
-        shape, a, points, mask, config.k1, config.k2, config.capsule_segments, selection=s, groups=config.groups,
-        group_size=config.group_size)) for s in SELECTIONS}
+        shape, a, points, mask, broad_phase.k1, broad_phase.k2, broad_phase.capsule_segments, selection=s,
+        groups=broad_phase.groups, group_size=broad_phase.group_size)) for s in SELECTIONS}
     diffs = {s: [] for s in SELECTIONS}
     times = {s: [] for s in SELECTIONS + ("brute",)}
     for i, state in enumerate(near_states(spec, args.states, args.seed)):
-        arcs = rollouts(spec, config, state, jax.random.PRNGKey(args.seed + i))
+        arcs = rollouts(spec, controller, state, jax.random.PRNGKey(args.seed + i))
         bf, t = timed(brute, arcs, 1)
         times["brute"].append(t)
         for s in SELECTIONS:

@@ -34,14 +34,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from arguments import link_counts, positive
+from ncedf.controller import Controller
 from ncedf.convex import robot_clearance
-from ncedf.mppi import MPPI
+from ncedf.presets import Observation, ours
 from ncedf.robot import RobotSpec, forward_kinematics, sample_arc_lengths
 from ncedf.shapes import make_shape
 from recorder.cli import OneLineParser, exit_with
 from rows import print_rows
 from scenarios import cluttered
-from scenarios.presets import mppi_config
 from scenarios.world import make_observer
 
 #: The forms timed: (name, ``dense`` argument of ``robot_clearance``).
@@ -63,12 +63,11 @@ def compare(links: int, args) -> dict:
     """Both forms on the preset's (N, H) rollout states of a ``links``-link robot."""
     spec = RobotSpec(links)
     observer = make_observer(cluttered.make_world(), args.seed)
-    config = mppi_config("ours", "cluttered", links, n_points=len(observer.observe(0.0)))
-    controller = MPPI(spec, make_shape("spheres", spec), config)
-    state = controller.init(jax.random.PRNGKey(args.seed))
+    controller = Controller(spec, make_shape("spheres", spec), ours(spec, Observation(len(observer.observe(0.0)))))
+    config = controller.config.mppi
     before = controller.pad_points(observer.observe(0.0))
-    state = state._replace(previous=before[0], previous_mask=before[1])
-    polytopes = controller.polytopes(state, *controller.pad_points(observer.observe(config.dt)))  # its second step
+    now = controller.pad_points(observer.observe(config.dt))  # its second step
+    polytopes = controller.config.model.fit(*now, *before, config.dt)
     arcs = sample_arc_lengths(jax.random.PRNGKey(args.seed), spec, (config.samples, config.horizon, links))
     frames = forward_kinematics(arcs, spec)
     ahead = config.dt * jnp.arange(1, config.horizon + 1, dtype=arcs.dtype)

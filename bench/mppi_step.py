@@ -41,7 +41,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ncedf.mppi import MPPI, MPPIConfig, mppi_step
+from ncedf.broad_phase import BroadPhase
+from ncedf.controller import Controller, ControllerConfig
+from ncedf.mppi import MPPIConfig, mppi_step
 from ncedf.robot import RobotSpec, project_state
 from ncedf.shapes import make_shape
 from scenarios import cluttered
@@ -85,12 +87,12 @@ def run(links, rep, args, model, points):
     horizon = args.horizon if (links <= 6 or args.same_horizon) else args.horizon_long
     base = dict(samples=args.samples, horizon=horizon, max_points=max(len(points), 1))
     shape = build_shape(rep, spec, model)
-    fast = MPPI(spec, shape, MPPIConfig(broad_phase=True, k1=args.k1, k2=args.k2, **base))
-    ref = MPPI(spec, shape, MPPIConfig(broad_phase=False, **base))
+    fast = Controller(spec, shape, ControllerConfig(MPPIConfig(**base), broad_phase=BroadPhase(args.k1, args.k2)))
+    ref = Controller(spec, shape, ControllerConfig(MPPIConfig(**base), broad_phase=None))
     pts, mask = fast.pad_points(points)
     goal = jnp.asarray(cluttered.GOAL, jnp.float32)
 
-    state = fast.init(jax.random.PRNGKey(args.seed))
+    state = fast.init(jax.random.PRNGKey(args.seed)).mppi
     arc = jnp.asarray(spec.straight_state(), jnp.float32)
     step, compile_s = compiled_step(fast, state, arc, goal, pts, mask)
     ref_step, ref_compile = compiled_step(ref, state, arc, goal, pts, mask)
@@ -103,7 +105,7 @@ def run(links, rep, args, model, points):
             outputs.append(out)
         times.append(dt)
         action, state, _ = out
-        arc = arc + action * fast.config.dt
+        arc = arc + action * fast.config.mppi.dt
     med = float(np.median(times))
     p95 = float(np.percentile(times, 95))
 
@@ -152,17 +154,17 @@ def closed_loop(args, model):
     exact = jax.jit(lambda a: jnp.min(robot_signed_distance(jnp.asarray(cloud), a, spec)))
     runs = {}
     for bp in (True, False):
-        cfg = MPPIConfig(samples=args.cl_samples, horizon=args.horizon, max_points=len(cloud), broad_phase=bp,
-                         k1=args.k1, k2=args.k2)
-        m = MPPI(spec, shape, cfg)
+        cfg = ControllerConfig(MPPIConfig(samples=args.cl_samples, horizon=args.horizon, max_points=len(cloud)),
+                               broad_phase=BroadPhase(args.k1, args.k2) if bp else None)
+        m = Controller(spec, shape, cfg)
         pts, mask = m.pad_points(cloud)
-        st = m.init(jax.random.PRNGKey(args.seed))
+        st = m.init(jax.random.PRNGKey(args.seed)).mppi
         arc = np.asarray(spec.straight_state(), np.float32)
         traj, clearance, times = [arc.copy()], [], []
         for _ in range(args.cl_steps):
             (action, st, _), dt = timed(mppi_step, spec, cfg, shape, st, jnp.asarray(arc), jnp.asarray(goal), pts, mask)
             times.append(dt)
-            arc = np.asarray(project_state(arc + np.asarray(action) * cfg.dt, spec))  # remove float drift of the sum
+            arc = np.asarray(project_state(arc + np.asarray(action) * cfg.mppi.dt, spec))  # remove float drift of the sum
             traj.append(arc.copy())
             clearance.append(float(exact(jnp.asarray(arc))))
         tip = np.asarray(end_effector_pose(jnp.asarray(arc), spec)[:3, 3])
@@ -214,8 +216,8 @@ def main(argv=None):
     p.add_argument("--reps", default=DEFAULT_REPS,
                    help=f"default {DEFAULT_REPS}; add pointcloud:5000 explicitly "
                         "(its brute force takes minutes per step)")
-    p.add_argument("--k1", type=int, default=MPPIConfig.k1)
-    p.add_argument("--k2", type=int, default=MPPIConfig.k2)
+    p.add_argument("--k1", type=int, default=BroadPhase.k1)
+    p.add_argument("--k2", type=int, default=BroadPhase.k2)
     p.add_argument("--model", default=None, help="N-CEDF weights (default: the shipped model)")
     p.add_argument("--random-model", action="store_true", help="untrained 4x16 network (timing only)")
     p.add_argument("--seed", type=int, default=0)
@@ -253,7 +255,7 @@ def main(argv=None):
     t_start = time.perf_counter()
     print(
         f"jax {jax.__version__} on {jax.devices()[0].platform}; samples {args.samples}, points {len(points)}, "
-        f"k1 {args.k1}, k2 {args.k2}, capsule segments {MPPIConfig.capsule_segments}; broad phase timed over "
+        f"k1 {args.k1}, k2 {args.k2}, capsule segments {BroadPhase.capsule_segments}; broad phase timed over "
         f"{args.steps} steps, brute force over the first {args.ref_steps} of them on the same inputs "
         f"(column n; both AOT-compiled first, no warm-up step)"
     )

@@ -96,7 +96,7 @@ def time_group(group: Group, steps: int) -> list[dict]:
     out = []
     for label, (settings, paper_ms) in group.rows.items():
         t = times[label]
-        samples, horizon = prepared[label].scene.config.samples, prepared[label].scene.config.horizon
+        samples, horizon = prepared[label].scene.config.mppi.samples, prepared[label].scene.config.mppi.horizon
         median = float(np.median(t))
         out.append({"table": group.table, "scene": group.scene, "row": label, "shape": settings.shape,
                     "controller": settings.controller, "samples": samples, "horizon": horizon,

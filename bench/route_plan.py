@@ -49,7 +49,7 @@ from ncedf.robot import RobotSpec, sample_arc_lengths
 from recorder.cli import OneLineParser, exit_with
 from rows import print_rows
 from scenarios import cluttered
-from scenarios.presets import CONVEX_LINK
+from ncedf.presets import CONVEX_LINK
 from scenarios.world import World, make_observer
 
 #: Random states drawn to find the starts near a box.

@@ -44,7 +44,7 @@ the goal cost too). Measured step times: ``bench/mppi_step.py``.
 Selection ``mean`` fails for rollouts far from the average: their nearest
 points are not among the candidates of the average, and their distances are
 over-estimated, so rollouts that cross a surface can look safe. Near the
-cluttered scene's boxes, with the ``ours`` preset's rollouts, it over-estimates
+paper's boxes, with the ``ours`` preset's rollouts, it over-estimates
 2% of the rollout distances by more than 2 cm at 4 observed points per m^2 and
 10-28% at 16 (``bench/broad_phase.py``). Selection ``state`` picks per rollout
 state:
@@ -77,16 +77,45 @@ agreement is measured against brute force in ``bench/mppi_step.py``.
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from ncedf.robot import RobotSpec, arc_sagitta, bending_vector, even_series, forward_kinematics
+from ncedf.validate import check_fields
 
 #: The broad phase's candidate selections (module docstring).
 SELECTIONS = ("mean", "state")
 #: Selection ``state`` ranks the winners of this many strided blocks per kept entry.
 BLOCKS = 4
+
+
+@dataclasses.dataclass(frozen=True)
+class BroadPhase:
+    """The broad phase's sizes (module docstring).
+
+    Attributes:
+      k1: candidate points per (horizon step, link) of selection "mean".
+      k2: (link, point) pairs evaluated per rollout state; 12 keeps >= 99.9% of the rollout
+        minima equal to brute force at the paper's setting (``bench/mppi_step.py``).
+      capsule_segments: sub-arc capsules per link.
+      selection: "mean" (candidates around the rollouts' average per horizon step: fast) or
+        "state" (per rollout state from groups of the cloud).
+      groups, group_size: selection "state": (link, group) pairs per state, points per group.
+    """
+
+    k1: int = 128
+    k2: int = 12
+    capsule_segments: int = 2
+    selection: str = "mean"
+    groups: int = 32
+    group_size: int = 16
+
+    def __post_init__(self):
+        check_fields(self, integers=("k1", "k2", "capsule_segments", "groups", "group_size"),
+                     choices={"selection": SELECTIONS})
 
 
 def capsule_points(arcs: jnp.ndarray, frames: jnp.ndarray, spec: RobotSpec, segments: int):
@@ -452,3 +481,12 @@ def rollout_min_distances_brute(shape, arcs, points, mask):
         return jax.vmap(lambda x: shape.min_distance(points, x, mask))(arcs_k)
 
     return jax.lax.map(per_step, jnp.swapaxes(arcs, 0, 1)).T
+
+
+def rollout_min_distances(broad: BroadPhase | None, shape, arcs, points, mask, frames=None):
+    """(N, H) min distance of each rollout state (N, H, M, 3) to the cloud (P, 3) with mask (P,),
+    m: by the broad phase, or by brute force where ``broad`` is None."""
+    if broad is None:
+        return rollout_min_distances_brute(shape, arcs, points, mask)
+    return rollout_min_distances_broad(shape, arcs, points, mask, broad.k1, broad.k2, broad.capsule_segments,
+                                       frames, broad.selection, broad.groups, broad.group_size)

@@ -1,9 +1,9 @@
 """A convex model of an obstacle cloud: its clusters of static and of moving points as polytopes.
 
 A cloud sampled at a few points per square metre on obstacle surfaces has holes
-wider than the robot (``ncedf.cloud``: up to 0.8 m across at the paper's 4
+wider than the robot (up to 0.8 m across at the paper's 4
 points per m^2), and a distance to the points alone lets a link slide into a
-face between them. Where the obstacles are convex (the cluttered scene's boxes)
+face between them. Where the obstacles are convex (the paper's boxes)
 their surfaces can be closed from the points alone:
 
 * static and moving points: the rows of the cloud that did not move since the
@@ -29,11 +29,17 @@ their surfaces can be closed from the points alone:
   planes (with at least three points on each face). Where the samples stop
   short of a corner that neither the bounding box nor a kept plane reaches (a
   rotated box's corners; a curved surface between samples, whose hull faces
-  are chords) the model is smaller than the obstacle by that much. A non-convex cluster is
-  filled in (its concavities closed), so the model is for worlds of convex
-  obstacles, or of obstacles spaced further apart than ``link``;
+  are chords) the model is smaller than the obstacle by that much;
+* a static cluster that is not convex is left out (:func:`hull_depth`: a point
+  lies deeper than ``CONVEX_TOLERANCE`` inside the hull of its cluster; points
+  sampled on a convex surface all lie on their hull's boundary). Its polytope
+  would close the world's concavities (a wall's port, a ring's hole, a gap
+  between two obstacles closer than ``link``), so such a cluster is left to
+  the cloud. A moving group's clusters are closed whole: at the first
+  observation every point counts as moving, and an obstacle that chains to a
+  passing one is modelled with it until their motions tell them apart;
 * a cluster whose points lie on a sphere (:func:`fit_sphere`: all within
-  ``SPHERE_TOLERANCE`` of their least-squares sphere; the cluttered scene's
+  ``SPHERE_TOLERANCE`` of their least-squares sphere; the paper's
   moving spheres) is that sphere's ball, its radius grown to hold every point,
   instead of a polytope. It is the sphere, where the points' bounding box sticks
   out by up to 0.73 radii at its corners and their hull's faces, chords, cut
@@ -83,6 +89,8 @@ MIN_PLANE_SHARE = 0.05
 PLANE_TOLERANCE = 1e-3
 #: Plane counts a polytope's distance is compiled for (its valid planes rounded up to one of them).
 PLANE_BUCKETS = (0, 2, 4, MAX_PLANES)
+#: A cluster with a point deeper than this inside its hull is not convex and is left out, m.
+CONVEX_TOLERANCE = 0.01
 #: A cluster whose points all lie within this of their least-squares sphere is that sphere, m.
 SPHERE_TOLERANCE = 0.01
 #: Groups of points whose clusters' fit :func:`fit_polytopes` keeps (a static group repeats every step).
@@ -219,19 +227,34 @@ def fit_polytope(points: np.ndarray, planes: bool = True) -> tuple[np.ndarray, n
     return lower, upper, hull_n[keep][:MAX_PLANES], hull_b[keep][:MAX_PLANES]
 
 
+def hull_depth(points: np.ndarray) -> float:
+    """How deep the deepest of the points (P, 3) lies inside their convex hull, m: the least
+    distance to a hull face's plane (0 where every point is on the hull's boundary, and where
+    the points span no volume)."""
+    try:
+        hull = ConvexHull(np.asarray(points, np.float64))
+    except (QhullError, ValueError):  # fewer than 4 points, or all on a plane or line
+        return 0.0
+    depth = -(points @ hull.equations[:, :3].T + hull.equations[:, 3])  # (P, F) >= 0 up to rounding
+    return float(max(np.max(np.min(depth, axis=1)), 0.0))
+
+
 @functools.lru_cache(maxsize=FIT_CACHE)
 def _fit_group(data: bytes, link: float, bounds: bool) -> tuple[tuple, ...]:
     """The clusters of one group's points, given as the bytes of an (S, 3) float64 array
     (:func:`clusters` with ``bounds``): per cluster (its members' indices, then
     :func:`fit_polytope`'s four arrays and :func:`fit_sphere`'s result; a sphere's polytope
     without hull planes, as its ball replaces it). Cached: a static group repeats from step
-    to step."""
+    to step. With ``bounds`` (the static group) a cluster that is not convex (:func:`hull_depth`) is
+    left out."""
     points = np.frombuffer(data, np.float64).reshape(-1, 3)
     labels = clusters(points, link, bounds=bounds)
     fits = []
     for label in range(labels.max(initial=-1) + 1):
         members = np.flatnonzero(labels == label)
         sphere = fit_sphere(points[members])
+        if bounds and sphere is None and hull_depth(points[members]) > CONVEX_TOLERANCE:
+            continue
         fits.append((members, *fit_polytope(points[members], planes=sphere is None), sphere))
     return tuple(fits)
 
@@ -293,7 +316,7 @@ def polytope_distance(x: jnp.ndarray, polytopes: Polytopes, t=0.0, dense: bool |
     copies: compile time), and a cluster runs only what it has (``lax.switch``: absent,
     its ball, or its box and its plane slots up to the last valid one, rounded up to
     ``PLANE_BUCKETS``), since the arithmetic of the capacity is the cost (the
-    cluttered scene fills 4 or 5 of the ``MAX_CLUSTERS`` slots: its boxes without
+    paper's boxes and spheres fill 4 or 5 of the ``MAX_CLUSTERS`` slots: its boxes without
     planes, its spheres as balls). That is the CPU's form; other devices compute
     every cluster and plane slot at once, with no loop or branch (a GPU runs a
     loop's steps and branches one after another). ``dense`` chooses the form:

@@ -1,7 +1,7 @@
 """A route in configuration space around static convex obstacles, for a robot that MPPI leaves stuck.
 
-MPPI is local: where the way to the goal first leads away from it (the
-cluttered scene's goal right behind the upper box, reached through the gap
+MPPI is local: where the way to the goal first leads away from it (a
+goal right behind a box, reached through the gap
 under it) every rollout's goal cost says stay, and the robot stalls in front of
 the box. :func:`plan_route` finds the way round with a probabilistic roadmap
 over arc lengths, checked against the convex model of the static obstacles
@@ -35,13 +35,13 @@ over arc lengths, checked against the convex model of the static obstacles
   roadmap's path wanders).
 
 The route is the path's states, ``path_step`` apart in every arc length. The
-controller executes them (``MPPIConfig.route_after``): each step's move along
+controller executes them (``ncedf.recovery``): each step's move along
 them passes its safety check first, which sees the moving obstacles.
 
 Host-side (numpy and scipy around jitted JAX), as the polytope fit is: it runs
 once per stall, not per step. The states are scored ``PASS`` at a time (one
-compiled program per robot and settings, which ``MPPI.warm_up`` compiles before
-an episode). From random states near a box in the cluttered scene a plan takes 0.36 /
+compiled program per robot and settings, which ``Controller.warm_up`` compiles before
+an episode). From random states near a box of the paper's boxes a plan takes 0.36 /
 0.54 / 0.83 s with 4 / 5 / 7 links on a 2-core CPU (median; ``bench/route_plan.py``),
 up to 3.4 s where the lazy search falls back to every edge (before the damped least
 squares for the goal states: 1.11 / 1.36 / 1.69 s).

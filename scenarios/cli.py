@@ -24,7 +24,7 @@ from recorder import RecorderError
 from recorder.cli import EXIT_STATUS, OneLineParser, Stopped, stop_on_signals
 from recorder.recorder import FORMATS, check_writable, output_paths
 from scenarios.episode import Episode, EpisodeResult, EpisodeSettings
-from scenarios.presets import CONTROLLERS, DEFAULT_CONTROLLER, DEFAULT_REASON, PRESETS
+from ncedf.presets import DEFAULT, PRESETS, SUMMARIES
 
 def make_parser(scenario: str, description: str, *, links: int = 4, max_steps: int) -> OneLineParser:
     """A parser with the shared options (scenario options are added by the runner).
@@ -33,8 +33,9 @@ def make_parser(scenario: str, description: str, *, links: int = 4, max_steps: i
       scenario: the runner's name (``python -m scenarios.<scenario>``).
       description: --help text.  links: default link count.  max_steps: the scenario's step budget.
     """
-    controllers = "; ".join(f"{name}: {preset.summary}" for name, preset in PRESETS.items())
+    controllers = "\n".join(f"  {name:8s} {summary}" for name, summary in SUMMARIES.items())
     p = OneLineParser(prog=f"python -m scenarios.{scenario}", description=description,
+                      epilog=f"controllers (--controller):\n{controllers}",
                       formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--links", type=int, default=links, help=f"robot links (default {links})")
     p.add_argument("--seed", type=int, default=0, help="controller seed: the MPPI sampling noise (default 0)")
@@ -45,8 +46,8 @@ def make_parser(scenario: str, description: str, *, links: int = 4, max_steps: i
                         "(default ncedf)")
     p.add_argument("--model", metavar="PATH", help="N-CEDF weights (.msgpack/.json or their stem) for --shape ncedf "
                                                    "(default: the shipped model)")
-    p.add_argument("--controller", choices=CONTROLLERS, default=DEFAULT_CONTROLLER,
-                   help=f"MPPI settings (default {DEFAULT_REASON}). {controllers}")
+    p.add_argument("--controller", choices=tuple(PRESETS), default=DEFAULT,
+                   help=f"controller preset, listed below (default {DEFAULT})")
     p.add_argument("--samples", type=int, help="MPPI rollouts (default: the controller's)")
     p.add_argument("--horizon", type=int, help="MPPI horizon in steps (default: the controller's)")
     p.add_argument("--max-steps", type=int, help=f"step budget (default {max_steps})")

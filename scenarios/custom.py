@@ -11,26 +11,20 @@ the origin, its first tangent +z (it starts straight up, 2 m per link).
 Scenario options (kept in the run's settings): obstacles (absolute path),
 goal_position, offset, density, tolerance.
 
-A closed convex mesh (trimesh's ``is_convex``) gets the controller fields of the
-cluttered scene (``CONVEX_PRESET``; with ``--controller ours``: the convex model
-of the cloud and the route round it, ``scenarios.presets``), the shape of obstacle
-they assume; any other mesh or a bare cloud keeps the fields of this scenario.
-The run's metadata says which (``scene.convex_mesh``).
+The controller is the one every world gets (``ncedf.presets``): with
+``--controller ours`` it closes the convex clusters of the observed cloud and
+leaves the others to the points.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
-
 from scenarios.cli import base_settings, make_parser, run_cli
 from scenarios.episode import (EpisodeSettings, Scene, make_scene, option_positive, option_vector,
                                require_fixed_goal, scenario_options)
-from scenarios.world import CloudObstacle, MeshObstacle, World, load_obstacle
+from scenarios.world import CloudObstacle, World, load_obstacle
 
-#: The scenario whose preset fields a closed convex mesh gets (module docstring).
-CONVEX_PRESET = "cluttered"
 DENSITY = 4.0
 TOLERANCE = 0.2
 MAX_STEPS = 300
@@ -53,19 +47,7 @@ def build(settings: EpisodeSettings) -> Scene:
         world = World(clouds=(obstacle,), density=density)
     else:
         world = World(meshes=(obstacle,), density=density)
-    convex = convex_mesh(obstacle)
-    return make_scene(settings, world, goal, tolerance, MAX_STEPS, preset_scenario=CONVEX_PRESET if convex else None,
-                      convex_mesh=convex)
-
-
-def convex_mesh(obstacle: MeshObstacle | CloudObstacle) -> bool:
-    """True for a closed (watertight) convex mesh; False for any other mesh and for a bare cloud."""
-    import trimesh
-
-    if not isinstance(obstacle, MeshObstacle):
-        return False
-    mesh = trimesh.Trimesh(np.asarray(obstacle.vertices), np.asarray(obstacle.faces), process=True)
-    return bool(mesh.is_watertight and mesh.is_convex)
+    return make_scene(settings, world, goal, tolerance, MAX_STEPS)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -75,13 +75,13 @@ from tqdm import tqdm
 
 from ncedf.geometry import robot_link_signed_distances, robot_mesh_arrays, robot_surface_points
 from ncedf.model import load_model
-from ncedf.mppi import MPPI, MPPIConfig
+from ncedf.controller import Controller, ControllerConfig, config_to_dict
 from ncedf.robot import RobotSpec, arc_lengths_to_config, forward_kinematics, project_state
 from ncedf.shapes import make_shape
 from recorder import Recorder, RecordingInterrupted
 from recorder.recorder import FORMATS, check_writable, output_paths
 from scenarios import world as world_mod
-from scenarios.presets import CONTROLLERS, DEFAULT_CONTROLLER, mppi_config
+from ncedf.presets import DEFAULT, PRESETS, Observation, preset
 
 #: Runnable scenarios: the module ``scenarios.<name>`` defines ``build(settings) -> Scene``.
 SCENARIOS = ("cluttered", "spheres", "charging", "custom")
@@ -116,7 +116,7 @@ class EpisodeSettings:
         obstacles, port position, goal, observed surface points).
       shape: robot-shape representation for the controller (``ncedf.shapes.make_shape``).
       model: N-CEDF weights (path) for shape ``ncedf``; None = the shipped model.
-      controller: a preset of ``scenarios.presets`` (``paper``, ``release`` or ``ours``).
+      controller: a preset of ``ncedf.presets`` (``paper``, ``release`` or ``ours``).
       samples, horizon: override the preset's rollouts and horizon.
       max_steps: override the scenario's step budget.
       goal: ``fixed``, ``random`` or a position ``"X,Y,Z"``, m (scenarios that draw
@@ -130,7 +130,7 @@ class EpisodeSettings:
     env_seed: int = 0
     shape: str = "ncedf"
     model: str | None = None
-    controller: str = DEFAULT_CONTROLLER
+    controller: str = DEFAULT
     samples: int | None = None
     horizon: int | None = None
     max_steps: int | None = None
@@ -152,8 +152,8 @@ class EpisodeSettings:
                 raise ValueError(f"model must be a path or None, got {self.model!r}")
             if self.shape != "ncedf":
                 raise ValueError(f"a model file ({self.model}) is only used by shape 'ncedf', not {self.shape!r}")
-        if self.controller not in CONTROLLERS:
-            raise ValueError(f"unknown controller {self.controller!r}; choose one of {', '.join(CONTROLLERS)}")
+        if self.controller not in PRESETS:
+            raise ValueError(f"unknown controller {self.controller!r}; choose one of {', '.join(PRESETS)}")
         for name in ("samples", "horizon", "max_steps"):
             _check_count(name, getattr(self, name))
         object.__setattr__(self, "goal", goal_text(self.goal))
@@ -227,7 +227,7 @@ class Scene:
       world: obstacles (``scenarios.world.World``).  observer: its observation, drawn from env_seed.
       goal: position (3,) or pose (4, 4), world frame, m.
       tolerance: goal position tolerance, m.  angle_tolerance: pose goals, rad.
-      max_steps: step budget.  spec: the robot.  config: MPPI settings.
+      max_steps: step budget.  spec: the robot.  config: the controller's settings.
       info: scenario-specific facts for the run metadata (JSON-ready).
     """
 
@@ -237,18 +237,17 @@ class Scene:
     tolerance: float
     max_steps: int
     spec: RobotSpec
-    config: MPPIConfig
+    config: ControllerConfig
     angle_tolerance: float | None = None
     info: dict = dataclasses.field(default_factory=dict)
 
 
-def make_scene(settings: EpisodeSettings, world, goal, tolerance: float, max_steps: int,
-               preset_scenario: str | None = None, **info) -> Scene:
-    """Assemble a Scene: observer from ``env_seed``, robot, controller preset sized to the cloud.
+def make_scene(settings: EpisodeSettings, world, goal, tolerance: float, max_steps: int, **info) -> Scene:
+    """Assemble a Scene: observer from ``env_seed``, robot, and the controller preset for the robot
+    and what it observes (``ncedf.presets.Observation``).
 
     ``settings.max_steps`` overrides ``max_steps``; a (4, 4) goal is a pose goal
-    (judged with ``ANGLE_TOLERANCE``). ``preset_scenario``: the scenario whose
-    preset fields the controller takes (``scenarios.presets``; None = ``settings.scenario``).
+    (judged with ``ANGLE_TOLERANCE``).
     """
     goal = np.asarray(goal, dtype=np.float64)
     if goal.shape not in ((3,), (4, 4)) or not np.all(np.isfinite(goal)):
@@ -257,9 +256,8 @@ def make_scene(settings: EpisodeSettings, world, goal, tolerance: float, max_ste
         raise ValueError(f"goal tolerance must be > 0, got {tolerance}")
     observer = world_mod.make_observer(world, settings.env_seed)
     spec = RobotSpec(settings.links)
-    config = mppi_config(settings.controller, preset_scenario or settings.scenario, settings.links,
-                         n_points=observer.n_points, margin_extra=world.margin_extra, samples=settings.samples,
-                         horizon=settings.horizon)
+    observation = Observation(observer.n_points, ball_radius=world.margin_extra)
+    config = preset(settings.controller, spec, observation, samples=settings.samples, horizon=settings.horizon)
     return Scene(world=world, observer=observer, goal=goal, tolerance=float(tolerance),
                  max_steps=settings.max_steps or max_steps, spec=spec, config=config,
                  angle_tolerance=ANGLE_TOLERANCE if goal.shape == (4, 4) else None, info=info)
@@ -448,7 +446,7 @@ class Episode:
         model = load_model(settings.model) if settings.shape == "ncedf" else None
         self.shape = make_shape(settings.shape, scene.spec, model=model)
         self.model = None if model is None else model_description(model, settings.model)
-        self.mppi = MPPI(scene.spec, self.shape, scene.config)
+        self.mppi = Controller(scene.spec, self.shape, scene.config)
 
     def run_meta(self, mesh_every: int) -> dict[str, Any]:
         """The ``/run`` metadata: everything needed to rerun the episode."""
@@ -461,7 +459,7 @@ class Episode:
             "env_seed": s.env_seed,
             "controller": s.controller,
             "settings": s.to_dict(),
-            "mppi": dataclasses.asdict(scene.config),
+            "mppi": config_to_dict(scene.config),
             "robot": dataclasses.asdict(scene.spec),
             "model": self.model,
             "world": describe_world(scene.world),
@@ -502,7 +500,7 @@ class Episode:
         recorder = None
         if out is not None:
             recorder = Recorder(out, self.run_meta(mesh_every), formats, overwrite=overwrite,
-                                safety_margin=scene.config.safety_margin - scene.world.margin_extra,
+                                safety_margin=scene.config.mppi.safety_margin - scene.world.margin_extra,
                                 goal_tolerance=scene.tolerance, viewer=viewer)
         loop = _Loop(self, recorder, mesh_every, progress)
         try:
@@ -567,7 +565,7 @@ class _Loop:
     def run(self, arc: np.ndarray, goal_jnp, distance: float) -> EpisodeResult:
         """From the straight state ``arc`` at exact distance ``distance``; the result."""
         scene, mppi, spec = self.scene, self.episode.mppi, self.scene.spec
-        world, dt = scene.world, scene.config.dt
+        world, dt = scene.world, scene.config.mppi.dt
         state = mppi.init(jax.random.PRNGKey(self.episode.settings.seed))
         for k in range(scene.max_steps + 1):
             t = k * dt

@@ -43,7 +43,8 @@ import numpy as np
 import optax
 
 from ncedf.geometry import robot_signed_distance
-from ncedf.mppi import MPPIConfig, release_controls
+from ncedf.mppi import MPPIConfig
+from ncedf.sampling import release_controls
 from ncedf.robot import RobotSpec, forward_kinematics, project_state
 from scenarios.world import World, judge_step
 

@@ -18,7 +18,7 @@ package versions (quick results are marked there and in every table).
   cluttered scene's ~500 observed points). Weights are saved beside it.
 * Table II: 4 x 16 with and without the over-estimation loss, recorded the same way.
 * Table III: the dynamic-sphere sweep, shapes ncedf, spheres, pointcloud:1000,
-  pointcloud:5000 x every controller of ``scenarios.presets.CONTROLLERS``
+  pointcloud:5000 x every controller of ``ncedf.presets.PRESETS``
   (``--envs`` environments; ``--envs-5000`` for pointcloud:5000).
 * Table IV: cluttered, 4 / 5 / 7 links x ``--seeds`` seeds x every controller.
 * timing (the MPPI time figures): one step of the paper's controller (800 samples, horizon 20) per
@@ -184,16 +184,16 @@ def mppi_step_ms(model, points, budget: Budget, seed: int = 0, shape: str = "nce
     import jax.numpy as jnp
     import numpy as np
 
-    from ncedf.mppi import MPPI
+    from ncedf.controller import Controller
+    from ncedf.presets import Observation, preset
     from ncedf.robot import RobotSpec
     from ncedf.shapes import make_shape
     from scenarios.cluttered import GOAL
-    from scenarios.presets import mppi_config
 
     spec = RobotSpec(links)
-    config = mppi_config("paper", "cluttered", links, n_points=len(points), samples=budget.timing_samples,
-                         horizon=budget.timing_horizon)
-    mppi = MPPI(spec, make_shape(shape, spec, model=model) if shape == "ncedf" else make_shape(shape, spec), config)
+    config = preset("paper", spec, Observation(len(points)), samples=budget.timing_samples,
+                    horizon=budget.timing_horizon)
+    mppi = Controller(spec, make_shape(shape, spec, model=model) if shape == "ncedf" else make_shape(shape, spec), config)
     state = mppi.init(jax.random.PRNGKey(seed))
     arc = jnp.asarray(spec.straight_state(), jnp.float32)
     goal = jnp.asarray(GOAL, jnp.float32)
@@ -203,7 +203,7 @@ def mppi_step_ms(model, points, budget: Budget, seed: int = 0, shape: str = "nce
         start = time.perf_counter()
         action, state, _ = jax.block_until_ready(mppi.step(state, arc, goal, points))
         times.append(1e3 * (time.perf_counter() - start))
-        arc = arc + np.asarray(action) * config.dt
+        arc = arc + np.asarray(action) * config.mppi.dt
     return times
 
 
@@ -281,7 +281,7 @@ def run_networks(table: str, out: Path, budget: Budget, seed: int, command: str)
 # ---------------------------------------------------------------- Tables III and IV: sweeps
 def sweep_episodes(table: str, budget: Budget):
     """Every episode of Table III or IV."""
-    from scenarios.presets import CONTROLLERS
+    from ncedf.presets import PRESETS as CONTROLLERS
     from scenarios.sweep import sweep_settings
 
     common = {k: v for k, v in (("samples", budget.samples), ("horizon", budget.horizon),
@@ -295,7 +295,7 @@ def sweep_episodes(table: str, budget: Budget):
 
 def run_episodes(table: str, out: Path, budget: Budget, seed: int, command: str) -> int:
     """Run the sweep of ``table`` (resumes); the sweep's exit status."""
-    from scenarios.presets import CONTROLLERS
+    from ncedf.presets import PRESETS as CONTROLLERS
     from scenarios.sweep import run_sweep, summary_table
 
     where = folder(out, table, budget)

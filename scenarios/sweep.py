@@ -598,7 +598,7 @@ def _option(text: str) -> tuple[str, str]:
 def parse_args(argv=None) -> argparse.Namespace:
     from ncedf.shapes import REPRESENTATIONS
     from scenarios.episode import GOALS, SCENARIOS, EpisodeSettings
-    from scenarios.presets import CONTROLLERS
+    from ncedf.presets import PRESETS as CONTROLLERS
 
     p = OneLineParser(prog="python -m scenarios.sweep", description=__doc__.split("\n\n")[0],
                                 epilog="Exit status: 0 all episodes complete, 1 some failed, 2 bad arguments, "

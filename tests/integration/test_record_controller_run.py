@@ -7,7 +7,8 @@ import pandas as pd
 import pytest
 
 from ncedf.geometry import robot_mesh_arrays, robot_signed_distance
-from ncedf.mppi import MPPI, MPPIConfig
+from ncedf.controller import Controller, ControllerConfig
+from ncedf.mppi import MPPIConfig
 from ncedf.robot import RobotSpec, arc_lengths_to_config, forward_kinematics
 from ncedf.shapes import make_shape
 from recorder import Recorder, load_run
@@ -18,18 +19,18 @@ STEPS = 4
 @pytest.fixture(scope="module")
 def recorded(tmp_path_factory):
     spec = RobotSpec(4)
-    config = MPPIConfig(samples=32, horizon=5)
-    mppi = MPPI(spec, make_shape("exact", spec), config)
+    config = ControllerConfig(MPPIConfig(samples=32, horizon=5))
+    mppi = Controller(spec, make_shape("exact", spec), config)
     state = mppi.init(jax.random.PRNGKey(0))
     arc = spec.straight_state()
     goal = jnp.array([2.0, 1.0, 6.0])
     obstacles = jnp.array([[1.5, 0.0, 4.0], [1.5, 0.3, 4.2], [-1.0, 1.0, 5.0]])
     out = tmp_path_factory.mktemp("runs") / "episode"
     sent = []
-    with Recorder(out, {"scenario": "integration", "links": 4, "seed": 0}, safety_margin=config.safety_margin) as rec:
+    with Recorder(out, {"scenario": "integration", "links": 4, "seed": 0}, safety_margin=config.mppi.safety_margin) as rec:
         for k in range(STEPS):
             action, state, info = mppi.step(state, arc, goal, obstacles)
-            arc = arc + action * config.dt
+            arc = arc + action * config.mppi.dt
             vertices, faces = robot_mesh_arrays(arc, spec, rings=8, around=8)
             frames = forward_kinematics(arc, spec)
             theta, phi = arc_lengths_to_config(arc, spec)
@@ -42,7 +43,7 @@ def recorded(tmp_path_factory):
             }
             state_row = {"arc_lengths": np.asarray(arc), "theta": np.asarray(theta), "phi": np.asarray(phi),
                          "ee_position": ee}
-            rec.log_step(k, k * config.dt, metrics=metrics, mesh_vertices=vertices, mesh_triangles=faces,
+            rec.log_step(k, k * config.mppi.dt, metrics=metrics, mesh_vertices=vertices, mesh_triangles=faces,
                          backbone=np.asarray(frames[:, :3, 3])[None], obstacle_points=np.asarray(obstacles),
                          goal=np.asarray(goal), plan=np.asarray(info.plan), state=state_row)
             sent.append((metrics, state_row))

@@ -4,14 +4,12 @@ on the test machine, against a few for the whole program."""
 
 import jax
 
-from ncedf import convex, mppi
+from ncedf import broad_phase, convex, safety
 
-#: (config, shape, arc, actions, points, mask, velocity=None, polytopes=None, shared=False)
-step_clearance = jax.jit(mppi.step_clearance, static_argnums=0, static_argnames="shared")
-#: (config, shape, arcs, points, mask, frames=None)
-rollout_min_distances = jax.jit(mppi.rollout_min_distances, static_argnums=0)
-#: (spec, polytopes, arcs, frames, start, hold_time)
-held_clearance = jax.jit(mppi.held_clearance, static_argnums=(0, 5))
+#: (dt, substeps, broad, shape, arc, actions, points, mask, polytopes=None, shared=False)
+step_clearance = jax.jit(safety.step_clearance, static_argnums=(0, 1, 2), static_argnames="shared")
+#: (broad, shape, arcs, points, mask, frames=None)
+rollout_min_distances = jax.jit(broad_phase.rollout_min_distances, static_argnums=0)
 #: (arcs, frames, spec, polytopes, t=0.0, dense=None)
 robot_clearance = jax.jit(convex.robot_clearance, static_argnums=2, static_argnames="dense")
 #: (x, polytopes, t=0.0, dense=None)

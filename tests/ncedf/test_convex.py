@@ -10,11 +10,15 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jitted import held_clearance, polytope_distance, robot_clearance, step_clearance
-from ncedf.convex import (CLEARANCE_CHUNK, COVER_SPHERES, MAX_CLUSTERS, _fit_group, clusters, fit_polytope,
-                          fit_polytopes, fit_sphere, static_rows)
+from jitted import polytope_distance, robot_clearance, step_clearance
+from ncedf.controller import Controller, ControllerConfig
+from ncedf.convex import (CLEARANCE_CHUNK, CONVEX_TOLERANCE, COVER_SPHERES, MAX_CLUSTERS, _fit_group, clusters,
+                          fit_polytope, fit_polytopes, fit_sphere, hull_depth, static_rows)
 from ncedf.geometry import robot_signed_distance
-from ncedf.mppi import HOLD_SAMPLES, MPPI, MPPIConfig, init_state, mppi_step
+from ncedf.mppi import MPPIConfig, init_state, mppi_step
+from ncedf.obstacle_model import ConvexModel
+from ncedf.recovery import RouteRecovery
+from ncedf.safety import SafetyFilter
 from ncedf.robot import RobotSpec, forward_kinematics, sample_arc_lengths
 from ncedf.shapes import make_shape, sphere_cover_radius
 
@@ -287,50 +291,56 @@ SPEC = RobotSpec(1)
 ARC = np.full((1, 3), 2.0, np.float32)
 CROSSING = np.array([[0.3, -0.15, -0.15]], np.float32)
 SLAB = np.array([[x, y, z] for x in (-0.7, -0.6) for y in (-0.5, 0.5) for z in (1.7, 2.4)], np.float32)
-CONFIG = MPPIConfig(samples=16, horizon=3, covariance=1e-10, dt=1.0, max_points=64, broad_phase=False,
-                    safety_check=True, convex_link=1.0)
+CONFIG = ControllerConfig(MPPIConfig(samples=16, horizon=3, covariance=1e-10, dt=1.0, max_points=64),
+                          broad_phase=None, safety=SafetyFilter(), model=ConvexModel(1.0))
+CORE = CONFIG.mppi
+
+
+def _fit(controller, state, cloud):
+    """The controller's obstacle model of ``cloud`` given the state's previous observation."""
+    return controller.config.model.fit(*controller.pad_points(cloud), state.previous, state.previous_mask, CORE.dt)
 
 
 def test_safety_check_sees_the_slab_between_its_corners():
     shape = make_shape("exact", SPEC)
     points, mask = jnp.asarray(SLAB), jnp.ones(len(SLAB), bool)
     actions = jnp.asarray(CROSSING)[None]
-    corners_only = float(step_clearance(CONFIG, shape, jnp.asarray(ARC), actions, points, mask)[0])
-    assert corners_only > CONFIG.safety_margin  # the points alone let the crossing through
-    closed = float(step_clearance(CONFIG, shape, jnp.asarray(ARC), actions, points, mask,
-                                  polytopes=fit_polytopes(SLAB, CONFIG.convex_link))[0])
+    corners_only = float(step_clearance(CORE.dt, 4, None, shape, jnp.asarray(ARC), actions, points, mask)[0])
+    assert corners_only > CORE.safety_margin  # the points alone let the crossing through
+    closed = float(step_clearance(CORE.dt, 4, None, shape, jnp.asarray(ARC), actions, points, mask,
+                                  polytopes=fit_polytopes(SLAB, CONFIG.model.link))[0])
     assert closed < 0.0
 
-    nominal = jnp.broadcast_to(jnp.asarray(CROSSING), (CONFIG.horizon, 1, 3))
-    state = init_state(SPEC, CONFIG, jax.random.PRNGKey(0))._replace(nominal=nominal)
+    nominal = jnp.broadcast_to(jnp.asarray(CROSSING), (CORE.horizon, 1, 3))
+    state = init_state(SPEC, CORE, jax.random.PRNGKey(0))._replace(nominal=nominal)
     goal = jnp.asarray([-1.24, 0.0, 1.33])
     action, _, info = mppi_step(SPEC, CONFIG, shape, state, jnp.asarray(ARC), goal, points, mask,
-                                fit_polytopes(SLAB, CONFIG.convex_link))
+                                fit_polytopes(SLAB, CONFIG.model.link))
     assert int(info.action_choice) != 0
-    assert float(step_clearance(CONFIG, shape, jnp.asarray(ARC), action[None], points, mask,
-                                polytopes=fit_polytopes(SLAB, 1.0))[0]) >= CONFIG.safety_margin
-    unmodelled, _, _ = mppi_step(SPEC, dataclasses.replace(CONFIG, convex_link=0.0), shape, state,
-                                 jnp.asarray(ARC), goal, points, mask, fit_polytopes(SLAB, 1.0))
-    np.testing.assert_allclose(unmodelled, CROSSING, atol=1e-4)  # off: the polytopes are ignored
+    assert float(step_clearance(CORE.dt, 4, None, shape, jnp.asarray(ARC), action[None], points, mask,
+                                polytopes=fit_polytopes(SLAB, 1.0))[0]) >= CORE.safety_margin
+    unmodelled, _, _ = mppi_step(SPEC, dataclasses.replace(CONFIG, model=None, safety=None), shape, state,
+                                 jnp.asarray(ARC), goal, points, mask)
+    np.testing.assert_allclose(unmodelled, CROSSING, atol=1e-4)  # the cloud alone lets the crossing through
 
 
 def test_the_controller_clusters_moving_and_static_points_apart():
-    mppi = MPPI(SPEC, make_shape("exact", SPEC), CONFIG)
+    mppi = Controller(SPEC, make_shape("exact", SPEC), CONFIG)
     state = mppi.init(jax.random.PRNGKey(0))
     above = SLAB + np.array([0.0, 0.0, 0.8], np.float32)  # 0.1 m above the slab: within the link distance
     cloud = np.concatenate([above, SLAB])
-    poly = mppi.polytopes(state, *mppi.pad_points(cloud))
+    poly = _fit(mppi, state, cloud)
     assert int(np.sum(poly.present)) == 1  # nothing seen before: all one moving cluster
     np.testing.assert_allclose(np.asarray(poly.upper[0]), above.max(axis=0))
     _, state, _ = mppi.step(state, ARC, np.array([-1.24, 0.0, 1.33]), cloud)
     moved = above + np.array([0.0, 0.0, 0.05], np.float32)
-    poly = mppi.polytopes(state, *mppi.pad_points(np.concatenate([moved, SLAB])))
+    poly = _fit(mppi, state, np.concatenate([moved, SLAB]))
     assert int(np.sum(poly.present)) == 2
     bounds = sorted((tuple(np.asarray(poly.lower[c])), tuple(np.asarray(poly.upper[c]))) for c in range(2))
     np.testing.assert_allclose(bounds[0], [SLAB.min(axis=0), SLAB.max(axis=0)])
     np.testing.assert_allclose(bounds[1], [moved.min(axis=0), moved.max(axis=0)])
     speeds = sorted(float(np.asarray(poly.velocity[c])[2]) for c in range(2))
-    np.testing.assert_allclose(speeds, [0.0, 0.05 / CONFIG.dt], atol=1e-6)
+    np.testing.assert_allclose(speeds, [0.0, 0.05 / CORE.dt], atol=1e-6)
 
 
 @DENSE
@@ -349,46 +359,58 @@ def test_a_moving_polytope_is_scored_where_it_will_be(dense):
                                _box_sdf(x, (0.0, 0.0, 0.0), (1.0, 1.0, 1.0)), atol=1e-5)
 
 
-def test_the_held_state_sees_an_obstacle_that_will_arrive():
-    # A straight link (the z axis from 0 to 2 m) held still; a box whose near face is x = 2.5 m at t = 0
-    # approaches along -x. Closed form: the cover spheres' clearance at time t is 2.5 - v t - R.
-    spec = RobotSpec(1)
-    arc = jnp.full((1, 1, 3), spec.length)
-    frames = forward_kinematics(arc, spec)
-    radius = float(sphere_cover_radius(jnp.asarray(0.0), spec, COVER_SPHERES))
-    points = _box_surface(np.random.default_rng(5), (3.0, 0.0, 1.0), (1.0, 1.0, 3.0), 20.0)
-    start, hold = 0.5, 1.0
-    for v in (0.8, 0.0, -0.8):  # approaching, at rest, receding
-        poly = fit_polytopes(points, 1.0, velocity=np.tile([-v, 0.0, 0.0], (len(points), 1)))
-        held = float(held_clearance(spec, poly, arc, frames, start, hold)[0])
-        if v == 0:
-            assert np.isinf(held)  # a static polytope is scored at the start only
-            continue
-        times = start + hold * np.arange(1, HOLD_SAMPLES + 1) / HOLD_SAMPLES
-        assert held == pytest.approx(min(2.5 - v * times) - radius, abs=1e-5)
-        now = float(robot_clearance(arc, frames, spec, poly, start)[0])
-        assert (held < now - 0.5 * v * hold) if v > 0 else (held >= now - 1e-6)
+def _solid_surface(solid, spacing=(0.125, 0.25, 0.25)) -> np.ndarray:
+    """Grid points of the solid (a predicate on (P, 3) points) with a grid neighbour outside it:
+    samples of its surface, the inner faces of its holes included."""
+    axes = [np.arange(-3.0, 5.0 + 1e-9, h) for h in spacing]
+    grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    inside = solid(grid)
+    outer = np.zeros(len(grid), bool)
+    for step in np.concatenate([np.diag(spacing), -np.diag(spacing)]):
+        outer |= ~solid(grid + step)
+    return grid[inside & outer]
+
+
+def _wall(points, port: bool) -> np.ndarray:
+    """A wall 0.5 m thick (x in [0, 0.5], y in [-2, 2], z in [0, 4]), with a 1 m square port at y = 0, z = 2."""
+    x, y, z = points.T
+    wall = (x >= -1e-9) & (x <= 0.5 + 1e-9) & (np.abs(y) <= 2 + 1e-9) & (z >= -1e-9) & (z <= 4 + 1e-9)
+    hole = (np.abs(y) < 0.5 - 1e-9) & (np.abs(z - 2.0) < 0.5 - 1e-9)
+    return wall & ~hole if port else wall
+
+
+def test_a_cluster_that_is_not_convex_is_left_to_the_cloud():
+    solid = _solid_surface(lambda p: _wall(p, port=False))
+    ported = _solid_surface(lambda p: _wall(p, port=True))
+    # Closed form: the points halfway through the port's inner faces lie half the thickness deep.
+    assert hull_depth(solid) < CONVEX_TOLERANCE
+    assert hull_depth(ported) == pytest.approx(0.25, abs=1e-9)
+    assert int(np.sum(fit_polytopes(solid, 1.0).present)) == 1
+    assert int(np.sum(fit_polytopes(ported, 1.0).present)) == 0
+    # Beside the ported wall a box stays in the model: the clusters are judged one by one.
+    box = _box_surface(np.random.default_rng(6), (3.0, 0.0, 2.0), (1.0, 1.0, 1.0), 20.0)
+    both = fit_polytopes(np.concatenate([ported, box]), 1.0)
+    assert int(np.sum(both.present)) == 1
+    np.testing.assert_allclose(both.lower[0], box.min(axis=0), atol=1e-6)
 
 
 def test_convex_link_is_validated():
-    with pytest.raises(ValueError, match="convex_link"):
-        MPPIConfig(convex_link=-1.0)
-    with pytest.raises(ValueError, match="hold_time"):
-        MPPIConfig(hold_time=1.0)
-    with pytest.raises(ValueError, match="hold_time"):
-        MPPIConfig(convex_link=1.0, hold_time=-1.0)
+    with pytest.raises(ValueError, match="ConvexModel.link"):
+        ConvexModel(-1.0)
+    with pytest.raises(ValueError, match="recovery plans round the obstacle model"):
+        dataclasses.replace(CONFIG, model=None, recovery=RouteRecovery())
 
 
 def test_the_controller_merges_only_static_clusters_by_their_bounds():
     # Two 3-point patches, bounds 0.9 m apart and points over 1 m apart: at the first step every
     # row counts as moving and they stay two clusters; once they stand still they are one.
-    mppi = MPPI(SPEC, make_shape("exact", SPEC), CONFIG)
+    mppi = Controller(SPEC, make_shape("exact", SPEC), CONFIG)
     state = mppi.init(jax.random.PRNGKey(0))
     a = np.array([[3.0, 0.0, 0.0], [4.0, 0.0, 0.0], [3.0, 1.0, 0.0]], np.float32)
     cloud = np.concatenate([a, a + np.array([1.9, 0.5, 0.0], np.float32)])
-    assert int(np.sum(mppi.polytopes(state, *mppi.pad_points(cloud)).present)) == 2
+    assert int(np.sum(_fit(mppi, state, cloud).present)) == 2
     _, state, _ = mppi.step(state, ARC, np.array([-1.24, 0.0, 1.33]), cloud)
-    poly = mppi.polytopes(state, *mppi.pad_points(cloud))
+    poly = _fit(mppi, state, cloud)
     assert int(np.sum(poly.present)) == 1
     np.testing.assert_allclose(np.asarray(poly.lower[0]), cloud.min(axis=0))
     np.testing.assert_allclose(np.asarray(poly.upper[0]), cloud.max(axis=0))

@@ -11,38 +11,49 @@ import pytest
 from ncedf.broad_phase import (block_smallest, cloud_groups, rollout_min_distances_broad,
                                 rollout_min_distances_brute)
 from ncedf.geometry import robot_signed_distance
-from ncedf.mppi import MPPI, MPPIConfig, limit_to_state_bounds, mppi_step, project_controls
+from ncedf.broad_phase import BroadPhase
+from ncedf.controller import Controller, ControllerConfig
+from ncedf.mppi import MPPIConfig, mppi_step
+from ncedf.safety import SafetyFilter, limit_to_state_bounds
+from ncedf.sampling import Sampling, project_controls
+from ncedf.temperature import EffectiveSampleSize, Fixed, StallEscape
 from ncedf.robot import InvalidStateError, RobotSpec, end_effector_pose, project_state, sample_arc_lengths
 from ncedf.shapes import make_shape
 from scenarios.world import Box, World, make_observer
 
 SPEC = RobotSpec(4)
-SMALL = MPPIConfig(samples=64, horizon=10, max_points=64)
+SMALL = ControllerConfig(MPPIConfig(samples=64, horizon=10, max_points=64))
 
 
 @pytest.fixture(scope="module")
 def exact_mppi():
     # Cheap to compile; the exact representation is exercised in the broad-phase test.
-    return MPPI(SPEC, make_shape("spheres:2", SPEC), SMALL)
+    return Controller(SPEC, make_shape("spheres:2", SPEC), SMALL)
 
 
 @pytest.mark.parametrize(
-    "field, value",
-    [("samples", 0), ("horizon", -1), ("covariance", float("nan")), ("temperature", 0.0), ("alpha_u", 0.0),
-     ("alpha_u", 1.5), ("w_goal", -1.0), ("control_bound", -0.3), ("dt", float("inf")), ("samples", 2.5),
-     ("noise_clip", 0.0), ("shift_fill", "wrap"), ("broad_phase", 1), ("k1", 0), ("max_points", 0),
-     ("selection", "nearest"), ("groups", 0), ("group_size", 1.5)],
+    "stage, field, value",
+    [(MPPIConfig, "samples", 0), (MPPIConfig, "horizon", -1), (MPPIConfig, "covariance", float("nan")),
+     (MPPIConfig, "alpha_u", 0.0), (MPPIConfig, "alpha_u", 1.5), (MPPIConfig, "w_goal", -1.0),
+     (MPPIConfig, "control_bound", -0.3), (MPPIConfig, "dt", float("inf")), (MPPIConfig, "samples", 2.5),
+     (MPPIConfig, "max_points", 0), (MPPIConfig, "goal_reach", 1), (MPPIConfig, "progress", 0.0),
+     (Fixed, "value", 0.0), (EffectiveSampleSize, "target", 0.0), (EffectiveSampleSize, "target", 1.5),
+     (EffectiveSampleSize, "escape", 30), (StallEscape, "after", 0), (StallEscape, "target", 2.0),
+     (Sampling, "kind", "nearest"), (Sampling, "smoothing", 1.0), (Sampling, "clip", 0.0),
+     (Sampling, "unclipped", "yes"), (SafetyFilter, "substeps", 0), (SafetyFilter, "sweep_first", 1),
+     (BroadPhase, "k1", 0), (BroadPhase, "selection", "nearest"), (BroadPhase, "groups", 0),
+     (BroadPhase, "group_size", 1.5)],
 )
-def test_bad_config_values_are_rejected(field, value):
-    with pytest.raises(ValueError, match=field):
-        MPPIConfig(**{field: value})
+def test_bad_config_values_are_rejected(stage, field, value):
+    with pytest.raises(ValueError, match=f"{stage.__name__}.{field}"):
+        stage(**{field: value})
 
 
-def test_paper_defaults():
-    c = MPPIConfig()
-    assert (c.samples, c.horizon, c.covariance, c.temperature) == (800, 20, 0.05, 0.02)
-    assert (c.w_goal, c.w_coll, c.w_state, c.safety_margin, c.epsilon) == (12.0, 1.1, 50.0, 0.05, 0.01)
-    assert (c.control_bound, c.dt) == (0.3, 0.05)
+@pytest.mark.parametrize("stage, value", [("temperature", None), ("sampling", "release"), ("safety", True),
+                                          ("model", 1.0), ("mppi", None)])
+def test_a_stage_of_the_wrong_kind_is_named(stage, value):
+    with pytest.raises(ValueError, match=f"ControllerConfig.{stage}"):
+        ControllerConfig(**{stage: value})
 
 
 def test_unknown_representation():
@@ -73,7 +84,7 @@ def test_bad_inputs_give_clear_errors(exact_mppi):
     with pytest.raises(ValueError, match="goal"):
         exact_mppi.step(st, arc, np.zeros(2), None)
     with pytest.raises(ValueError, match="links"):
-        MPPI(RobotSpec(3), make_shape("exact", SPEC), SMALL)
+        Controller(RobotSpec(3), make_shape("exact", SPEC), SMALL)
 
 
 def test_projection_keeps_zero_sum_and_bound():
@@ -100,11 +111,11 @@ def test_deterministic_and_no_recompilation(exact_mppi):
     exact_mppi.step(exact_mppi.init(jax.random.PRNGKey(0)), arc0, goal, None)
     compiled = mppi_step._cache_size()
     # Another controller with the same robot and settings shares the compiled program.
-    m = MPPI(SPEC, make_shape("spheres:2", SPEC), SMALL)
+    m = Controller(SPEC, make_shape("spheres:2", SPEC), SMALL)
     a1, s1, i1 = m.step(m.init(jax.random.PRNGKey(3)), arc0, goal, np.ones((10, 3)) * 3)
     a2, s2, i2 = m.step(m.init(jax.random.PRNGKey(3)), arc0, goal, np.ones((10, 3)) * 3)
     np.testing.assert_array_equal(a1, a2)
-    np.testing.assert_array_equal(s1.nominal, s2.nominal)
+    np.testing.assert_array_equal(s1.mppi.nominal, s2.mppi.nominal)
     a3, _, _ = m.step(m.init(jax.random.PRNGKey(4)), arc0, goal, np.ones((10, 3)) * 3)
     assert not np.array_equal(a1, a3)
     # New states, goals and clouds of other sizes (incl. empty) reuse the program.
@@ -114,9 +125,9 @@ def test_deterministic_and_no_recompilation(exact_mppi):
         arc = np.asarray(sample_arc_lengths(jax.random.PRNGKey(n), SPEC, (4,)))
         _, st, info = m.step(st, arc, rng.normal(size=3) * 3, rng.normal(size=(n, 3)) * 3)
     assert mppi_step._cache_size() == compiled
-    assert info.plan.shape == (SMALL.horizon + 1, 3)
-    assert info.rollout_min_distance.shape == (SMALL.samples, SMALL.horizon)
-    assert 1.0 <= float(info.ess) <= SMALL.samples
+    assert info.plan.shape == (SMALL.mppi.horizon + 1, 3)
+    assert info.rollout_min_distance.shape == (SMALL.mppi.samples, SMALL.mppi.horizon)
+    assert 1.0 <= float(info.ess) <= SMALL.mppi.samples
     # A pose goal is the second (and last) variant.
     m.step(st, arc0, np.eye(4), None)
     m.step(st, arc0, np.asarray(_pose(arc)), None)
@@ -167,7 +178,7 @@ def test_state_selection_keeps_the_nearest_points_of_spread_rollouts_beside_a_de
     mask = jnp.arange(len(pts)) < len(cloud)
     u = project_controls(0.6 * jax.random.normal(jax.random.PRNGKey(5), (64, 12, 4, 3)), 0.3)
     arcs = SPEC.straight_state() + 0.05 * jnp.cumsum(u, axis=1)
-    c = MPPIConfig()
+    c = BroadPhase()
 
     @jax.jit
     def all_three(a):
@@ -235,7 +246,7 @@ def _drive(m, arc, goal, points, steps, key=0, judge=None):
     min_exact, dist = np.inf, np.inf
     for _ in range(steps):
         action, st, _ = m.step(st, arc, goal, pts)
-        arc = _project(arc + action * m.config.dt)  # remove float drift of the sum
+        arc = _project(arc + action * m.config.mppi.dt)  # remove float drift of the sum
         if judge is not None:
             min_exact = min(min_exact, float(_clearance(jnp.asarray(judge), arc)))
         dist = float(np.linalg.norm(np.asarray(_tip(jnp.asarray(arc))) - goal))
@@ -247,7 +258,7 @@ def _drive(m, arc, goal, points, steps, key=0, judge=None):
 def test_reaches_a_reachable_goal_without_obstacles():
     goal_arc = sample_arc_lengths(jax.random.PRNGKey(3), SPEC, (4,))
     goal = np.asarray(_tip(goal_arc))
-    m = MPPI(SPEC, make_shape("spheres:2", SPEC), SMALL)
+    m = Controller(SPEC, make_shape("spheres:2", SPEC), SMALL)
     dist, _ = _drive(m, SPEC.straight_state(), goal, None, steps=120)
     assert dist < 0.2
 
@@ -263,8 +274,8 @@ def test_avoids_obstacles_between_robot_and_goal():
     v = rng.normal(size=(40, 3))
     centre = 0.5 * (start + goal)
     pts = centre + 0.25 * v / np.linalg.norm(v, axis=1, keepdims=True)
-    cfg = dataclasses.replace(SMALL, samples=128)
-    m = MPPI(SPEC, make_shape("ncedf", SPEC, model=load_model()), cfg)
+    cfg = dataclasses.replace(SMALL, mppi=dataclasses.replace(SMALL.mppi, samples=128))
+    m = Controller(SPEC, make_shape("ncedf", SPEC, model=load_model()), cfg)
     dist, min_exact = _drive(m, SPEC.straight_state(), goal, pts, steps=200)
     assert min_exact > 0.0
     assert dist < 0.2

@@ -10,7 +10,12 @@ import pytest
 
 from ncedf.convex import fit_polytopes
 from ncedf.model import load_model
+from ncedf.controller import ControllerConfig
 from ncedf.mppi import MPPIConfig, init_state, mppi_step
+from ncedf.obstacle_model import ConvexModel
+from ncedf.safety import SafetyFilter
+from ncedf.sampling import Sampling
+from ncedf.temperature import EffectiveSampleSize
 from ncedf.precision import MATMUL
 from ncedf.robot import RobotSpec
 from ncedf.shapes import make_shape
@@ -40,19 +45,19 @@ def test_the_walker_sees_a_default_precision_product():
     assert dot_precisions(closed.jaxpr) == [None]
 
 
-@pytest.mark.parametrize("fields", [
-    {"noise_smoothing": 0.5, "update_unclipped": True, "convex_link": 0.6, "sweep_first": True,
-     "target_ess": 0.05},
-    {"fill_edge": 1.2},
+@pytest.mark.parametrize("stages", [
+    {"sampling": Sampling(smoothing=0.5, unclipped=True), "model": ConvexModel(0.6),
+     "safety": SafetyFilter(sweep_first=True), "temperature": EffectiveSampleSize(0.05)},
+    {},
 ])
-def test_controller_products_are_full_precision(fields):
-    config = MPPIConfig(samples=8, horizon=3, max_points=16, **fields)
+def test_controller_products_are_full_precision(stages):
+    config = ControllerConfig(MPPIConfig(samples=8, horizon=3, max_points=16), **stages)
     shape = make_shape("ncedf", SPEC, model=load_model())
     rng = np.random.default_rng(0)
     points = rng.uniform(-2.0, 2.0, (16, 3)).astype(np.float32) + np.float32([3.0, 0.0, 2.0])
     mask = jnp.ones(16, bool)
-    polytopes = fit_polytopes(points, config.convex_link) if config.convex_link else None
-    state = init_state(SPEC, config, jax.random.PRNGKey(0))
+    polytopes = fit_polytopes(points, config.model.link) if config.model else None
+    state = init_state(SPEC, config.mppi, jax.random.PRNGKey(0))
     step = functools.partial(mppi_step, SPEC, config, shape)
     closed = jax.make_jaxpr(step)(state, jnp.asarray(SPEC.straight_state()), jnp.asarray([2.0, 0.0, 2.0]),
                                   jnp.asarray(points), mask, polytopes)

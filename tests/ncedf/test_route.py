@@ -1,4 +1,4 @@
-"""ncedf.route and the controller's route (MPPIConfig.route_after): the planned path judged by the exact
+"""ncedf.route and the controller's recovery stage (ncedf.recovery): the planned path judged by the exact
 robot-box distance, and its execution under the safety check."""
 
 import dataclasses
@@ -8,10 +8,14 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import ncedf.mppi as mppi_module
+import ncedf.controller as controller_module
 import ncedf.route as route_module
 from ncedf.convex import fit_polytopes
-from ncedf.mppi import MPPI, ROUTE_CAPACITY, MPPIConfig
+from ncedf.controller import Controller, ControllerConfig
+from ncedf.mppi import MPPIConfig
+from ncedf.obstacle_model import ConvexModel
+from ncedf.recovery import RouteRecovery, RouteState
+from ncedf.safety import SafetyFilter
 from ncedf.robot import RobotSpec, sample_arc_lengths, validate_state
 from ncedf.route import (RouteConfig, around, between, clearances, goal_states, lazy_shortest_path, plan_route,
                          roadmap_edges, shortest_path, tips)
@@ -156,21 +160,25 @@ def test_between_spaces_states_evenly_inside_each_segment():
     np.testing.assert_allclose(states[4:, 0, 1], np.arange(1, 10) * 0.01, atol=1e-7)
 
 
-def _controller() -> MPPI:
-    config = MPPIConfig(samples=16, horizon=3, convex_link=1.0, route_after=5, route=ROUTE, safety_check=True)
-    return MPPI(SPEC, make_shape("spheres", SPEC), config)
+def _controller() -> Controller:
+    config = ControllerConfig(MPPIConfig(samples=16, horizon=3), model=ConvexModel(1.0), safety=SafetyFilter(),
+                              recovery=RouteRecovery(after=5, route=ROUTE))
+    return Controller(SPEC, make_shape("spheres", SPEC), config)
 
 
 def _with_route(state, route: np.ndarray):
-    states = np.zeros((ROUTE_CAPACITY,) + route.shape[1:], np.float32)
-    states[:len(route)] = route
-    return state._replace(route=jnp.asarray(states), route_at=jnp.asarray(0, jnp.int32),
-                          route_end=jnp.asarray(len(route), jnp.int32))
+    return state._replace(route=RouteState(route, 0, 0))
+
+
+def _stalled(state, count: int):
+    """The state after ``count`` steps without progress."""
+    return state._replace(mppi=state.mppi._replace(stalled=jnp.asarray(count, jnp.int32),
+                                                   best_goal=jnp.asarray(0.0, jnp.float32)))
 
 
 def test_a_route_is_executed_a_step_at_a_time_and_held_where_the_check_refuses(cloud):
     mppi = _controller()
-    c = mppi.config
+    c = mppi.config.mppi
     step = c.control_bound * c.dt
     bend = np.array([[0.3, -0.15, -0.15], [0.0, 0.0, 0.0]], np.float32) * 0.9 * step / 0.3  # within one step
     route = (START + np.arange(4)[:, None, None] * bend / 2).astype(np.float32)  # states 0.45 steps apart
@@ -178,11 +186,11 @@ def test_a_route_is_executed_a_step_at_a_time_and_held_where_the_check_refuses(c
     # Free space: the farthest state within one step (the second after the start), exactly.
     action, after, _ = mppi.step(state, START, GOAL)
     np.testing.assert_allclose(np.asarray(action), (route[2] - START) / c.dt, atol=1e-5)
-    assert int(after.route_at) == 2 and int(after.route_end) == 4
+    assert after.route.at == 2 and len(after.route.states) == 4
     # From there, the last state: the route's end, and MPPI takes over with a fresh stall count.
     action, after, _ = mppi.step(after, route[2], GOAL)
     np.testing.assert_allclose(np.asarray(action), (route[3] - route[2]) / c.dt, atol=1e-5)
-    assert int(after.route_at) == 3 and int(after.stalled) == 0
+    assert after.route.at == 3 and int(after.mppi.stalled) == 0
     # A small ball of points just past where the move would take the tip (its surface 0.2 m on, the link's
     # radius): refused; from where the robot stands it is 0.4 m off, so the robot holds.
     now, ahead = tips(START[None], SPEC)[0], tips(route[2:3], SPEC)[0]
@@ -191,17 +199,15 @@ def test_a_route_is_executed_a_step_at_a_time_and_held_where_the_check_refuses(c
     ball = (centre + 0.05 * d / np.linalg.norm(d, axis=1, keepdims=True)).astype(np.float32)
     action, after, _ = mppi.step(state, START, GOAL, ball)
     np.testing.assert_array_equal(np.asarray(action), 0.0)
-    assert int(after.route_at) == 0 and int(after.route_end) == 4
+    assert after.route.at == 0 and len(after.route.states) == 4
 
 
 def test_a_stalled_controller_plans_a_route_from_where_it_is(cloud):
     mppi = _controller()
-    state = mppi.init(jax.random.PRNGKey(0))._replace(stalled=jnp.asarray(50, jnp.int32),
-                                                      best_goal=jnp.asarray(0.0, jnp.float32))  # no progress
+    state = _stalled(mppi.init(jax.random.PRNGKey(0)), 50)
     _, after, _ = mppi.step(state, START, GOAL, cloud)
-    end = int(after.route_end)
-    assert int(after.routes) == 1 and 2 <= end <= ROUTE_CAPACITY and int(after.stalled) == 0
-    route = np.asarray(after.route[:end])
+    route = after.route.states
+    assert after.route.routes == 1 and len(route) >= 2 and int(after.mppi.stalled) == 0
     np.testing.assert_allclose(route[0], START, atol=1e-6)
     assert np.linalg.norm(tips(route[-1:], SPEC)[0] - GOAL) <= ROUTE.goal_tolerance
     assert _exact(route).min() > 0.0
@@ -210,22 +216,21 @@ def test_a_stalled_controller_plans_a_route_from_where_it_is(cloud):
 def test_without_a_route_the_stall_count_goes_on_and_the_next_plan_waits(cloud):
     mppi = _controller()
     inside = np.asarray(BAR.centre)  # no goal state: no route
-    state = mppi.init(jax.random.PRNGKey(0))._replace(stalled=jnp.asarray(50, jnp.int32),
-                                                      best_goal=jnp.asarray(0.0, jnp.float32))  # no progress
+    state = _stalled(mppi.init(jax.random.PRNGKey(0)), 50)
     _, after, _ = mppi.step(state, START, inside, cloud)  # 51 steps without progress: a plan is due
-    assert int(after.routes) == 1 and int(after.route_end) == 0
-    assert int(after.stalled) == 51 and float(after.best_goal) == 0.0  # the stall escape's state, untouched
+    assert after.route.routes == 1 and len(after.route.states) == 0
+    assert int(after.mppi.stalled) == 51 and float(after.mppi.best_goal) == 0.0  # the stall escape's, untouched
     _, after, _ = mppi.step(after, START, inside, cloud)
-    assert int(after.routes) == 1 and int(after.stalled) == 52  # the next plan at 51 + route_after
-    _, after, _ = mppi.step(after._replace(stalled=jnp.asarray(55, jnp.int32)), START, inside, cloud)
-    assert int(after.routes) == 2 and int(after.stalled) == 56
+    assert after.route.routes == 1 and int(after.mppi.stalled) == 52  # the next plan at 51 + after
+    _, after, _ = mppi.step(_stalled(after, 55), START, inside, cloud)
+    assert after.route.routes == 2 and int(after.mppi.stalled) == 56
 
 
 def test_route_settings_are_validated():
-    with pytest.raises(ValueError, match="convex_link"):
-        MPPIConfig(route_after=10)
-    with pytest.raises(ValueError, match="route_after"):
-        MPPIConfig(convex_link=1.0, route_after=-1)
+    with pytest.raises(ValueError, match="RouteRecovery.after"):
+        RouteRecovery(after=-1)
+    with pytest.raises(ValueError, match="RouteRecovery.route"):
+        RouteRecovery(route=5)
     with pytest.raises(ValueError, match="RouteConfig.samples"):
         RouteConfig(samples=0)
     with pytest.raises(ValueError, match="RouteConfig.lazy_rounds"):
@@ -239,14 +244,13 @@ def test_route_settings_are_validated():
 def test_warm_up_compiles_the_routes_programs_so_a_plan_compiles_nothing(cloud):
     mppi = _controller()
     programs = [route_module._clearance, route_module._refine, route_module._tips, route_module.around,
-                mppi_module._check_moves]
+                controller_module._check_moves]
     jax.clear_caches()  # so the warm-up compiles each of them, whatever the tests before compiled
     before = [p._cache_size() for p in programs]
     state = mppi.init(jax.random.PRNGKey(0))
     mppi.warm_up(state, START, GOAL, cloud)
     warm = [p._cache_size() for p in programs]
     assert all(w > b for w, b in zip(warm, before))
-    stalled = state._replace(stalled=jnp.asarray(50, jnp.int32), best_goal=jnp.asarray(0.0, jnp.float32))
-    _, after, _ = mppi.step(stalled, START, GOAL, cloud)
-    assert int(after.routes) == 1 and int(after.route_end) > 0  # a plan, its states in other counts than the warm-up's
+    _, after, _ = mppi.step(_stalled(state, 50), START, GOAL, cloud)
+    assert after.route.routes == 1 and len(after.route.states) > 0  # a plan, its states in other counts than the warm-up's
     assert [p._cache_size() for p in programs] == warm

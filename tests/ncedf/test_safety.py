@@ -1,5 +1,6 @@
-"""The controller's safety and sampling options: the executed action's check, release sampling,
-temperature for a target effective sample size, low-pass noise; presets paper / release unchanged."""
+"""The controller's stages on closed-form cases: the safety filter of the executed action, release
+sampling and the unclipped update, the temperature for an effective sample size, low-pass noise,
+the stall escape."""
 
 import dataclasses
 
@@ -8,13 +9,15 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jitted import rollout_min_distances, step_clearance
+from jitted import step_clearance
+from ncedf.controller import ControllerConfig
 from ncedf.geometry import robot_signed_distance
-from ncedf.mppi import (MIN_ESS, NOMINAL_SLACK, TEMPERATURE_GRID, MPPIConfig, cloud_velocity, init_state, mppi_step,
-                        release_controls, sample_noise, smoothing_matrix, temperature_for_ess)
+from ncedf.mppi import MPPIConfig, init_state, mppi_step
 from ncedf.robot import RobotSpec, forward_kinematics
+from ncedf.safety import SafetyFilter
+from ncedf.sampling import NOMINAL_SLACK, Sampling, release_controls, sample_noise, smoothing_matrix
 from ncedf.shapes import make_shape
-from scenarios.presets import mppi_config
+from ncedf.temperature import MIN_ESS, TEMPERATURE_GRID, EffectiveSampleSize, Fixed, StallEscape, temperature_for_ess
 
 # One link bent at the largest rate for a long step (dt = 1 s): the tip sweeps from (0, 0, 2)
 # to about (-1.24, 0, 1.33), through a thin wall of points at x = -0.6 (z in [1.7, 2.4]) that
@@ -23,7 +26,14 @@ SPEC = RobotSpec(1)
 ARC = np.full((1, 3), 2.0, np.float32)
 CROSSING = np.array([[0.3, -0.15, -0.15]], np.float32)
 GOAL = np.array([-1.24, 0.0, 1.33], np.float32)
-WALL_CONFIG = MPPIConfig(samples=16, horizon=3, covariance=1e-10, dt=1.0, max_points=512, broad_phase=False)
+WALL_CONFIG = ControllerConfig(MPPIConfig(samples=16, horizon=3, covariance=1e-10, dt=1.0, max_points=512),
+                               broad_phase=None)
+CHECKED = dataclasses.replace(WALL_CONFIG, safety=SafetyFilter())
+
+
+def _core(config, **fields):
+    """``config`` with core fields changed."""
+    return dataclasses.replace(config, mppi=dataclasses.replace(config.mppi, **fields))
 
 
 def _wall() -> np.ndarray:
@@ -41,8 +51,8 @@ def _exact_over_step(points, arc, action):
 def _run(config, points):
     shape = make_shape("exact", SPEC)
     mask = np.ones(len(points), bool)
-    nominal = jnp.broadcast_to(jnp.asarray(CROSSING), (config.horizon, 1, 3))
-    state = init_state(SPEC, config, jax.random.PRNGKey(0))._replace(nominal=nominal)
+    nominal = jnp.broadcast_to(jnp.asarray(CROSSING), (config.mppi.horizon, 1, 3))
+    state = init_state(SPEC, config.mppi, jax.random.PRNGKey(0))._replace(nominal=nominal)
     return mppi_step(SPEC, config, shape, state, jnp.asarray(ARC), jnp.asarray(GOAL), jnp.asarray(points),
                      jnp.asarray(mask))
 
@@ -58,20 +68,19 @@ def test_safety_check_refuses_an_action_that_crosses_a_thin_wall():
     unchecked, _, info = _run(WALL_CONFIG, wall)
     # Without the check the controller executes the crossing (its rollouts only see the end state).
     np.testing.assert_allclose(unchecked, CROSSING, atol=1e-4)
-    assert float(info.predicted_min_distance) > WALL_CONFIG.safety_margin
+    assert float(info.predicted_min_distance) > WALL_CONFIG.mppi.safety_margin
     assert float(jnp.min(_exact_over_step(jnp.asarray(wall), jnp.asarray(ARC), unchecked))) < 0
 
-    checked_config = dataclasses.replace(WALL_CONFIG, safety_check=True)
-    action, _, info = _run(checked_config, wall)
+    action, _, info = _run(CHECKED, wall)
     assert int(info.action_choice) != 0
-    assert float(info.action_clearance) >= checked_config.safety_margin
+    assert float(info.action_clearance) >= CHECKED.mppi.safety_margin
     assert float(jnp.min(_exact_over_step(jnp.asarray(wall), jnp.asarray(ARC), action))) >= 0.0
 
 
 def test_safety_check_keeps_a_safe_action():
     far = _wall() + np.array([-5.0, 0.0, 0.0], np.float32)  # the same wall out of reach
     unchecked, _, _ = _run(WALL_CONFIG, far)
-    action, _, info = _run(dataclasses.replace(WALL_CONFIG, safety_check=True), far)
+    action, _, info = _run(CHECKED, far)
     np.testing.assert_array_equal(action, unchecked)
     assert int(info.action_choice) == 0
 
@@ -82,23 +91,25 @@ def test_a_refused_plan_is_not_the_next_warm_start_with_follow_executed():
     # executed fallback's (the plan is constant over the horizon, so its next first control is
     # the executed action).
     wall = _wall()
-    config = dataclasses.replace(WALL_CONFIG, safety_check=True)
+    config = CHECKED
+    horizon = config.mppi.horizon
     action, kept, info = _run(config, wall)
     assert int(info.action_choice) != 0
-    np.testing.assert_allclose(np.asarray(kept.nominal), np.broadcast_to(CROSSING, (config.horizon, 1, 3)), atol=1e-4)
-    followed_action, followed, followed_info = _run(dataclasses.replace(config, follow_executed=True), wall)
+    np.testing.assert_allclose(np.asarray(kept.nominal), np.broadcast_to(CROSSING, (horizon, 1, 3)), atol=1e-4)
+    followed_action, followed, followed_info = _run(
+        dataclasses.replace(config, safety=SafetyFilter(follow_executed=True)), wall)
     np.testing.assert_array_equal(followed_action, action)
     assert int(followed_info.action_choice) == int(info.action_choice)
     np.testing.assert_allclose(np.asarray(followed.nominal),
-                               np.broadcast_to(np.asarray(action), (config.horizon, 1, 3)), atol=1e-6)
+                               np.broadcast_to(np.asarray(action), (horizon, 1, 3)), atol=1e-6)
     assert float(jnp.min(_exact_over_step(jnp.asarray(wall), jnp.asarray(ARC), followed.nominal[0]))) >= 0.0
 
 
 def test_follow_executed_changes_nothing_when_the_plan_passes_the_check():
     far = _wall() + np.array([-5.0, 0.0, 0.0], np.float32)
-    config = dataclasses.replace(WALL_CONFIG, safety_check=True, covariance=0.05)
+    config = _core(CHECKED, covariance=0.05)
     action, state, info = _run(config, far)
-    followed_action, followed, _ = _run(dataclasses.replace(config, follow_executed=True), far)
+    followed_action, followed, _ = _run(dataclasses.replace(config, safety=SafetyFilter(follow_executed=True)), far)
     assert int(info.action_choice) == 0
     np.testing.assert_array_equal(followed_action, action)
     np.testing.assert_array_equal(followed.nominal, state.nominal)
@@ -107,7 +118,7 @@ def test_follow_executed_changes_nothing_when_the_plan_passes_the_check():
 def test_sweep_first_scores_the_first_step_over_its_crossing():
     wall = _wall()
     _, _, plain = _run(WALL_CONFIG, wall)
-    _, _, swept = _run(dataclasses.replace(WALL_CONFIG, sweep_first=True), wall)
+    _, _, swept = _run(dataclasses.replace(WALL_CONFIG, safety=SafetyFilter(sweep_first=True)), wall)
     # Every sample is the crossing (covariance 1e-10): its end state is clear, its step is not.
     truth = min(float(jnp.min(robot_signed_distance(jnp.asarray(wall), jnp.asarray(ARC + s * CROSSING), SPEC)))
                 for s in (0.25, 0.5, 0.75, 1.0))
@@ -117,7 +128,7 @@ def test_sweep_first_scores_the_first_step_over_its_crossing():
     # The later steps are scored alike: two programs, so equal up to float rounding (XLA may fuse them apart).
     np.testing.assert_allclose(swept.rollout_min_distance[:, 1:], plain.rollout_min_distance[:, 1:], rtol=0, atol=1e-6)
     # The crossing is now charged the collision cost's ceiling (1 / epsilon) at x^1.
-    assert float(swept.cost_coll) - float(plain.cost_coll) > 0.9 * WALL_CONFIG.w_coll / WALL_CONFIG.epsilon
+    assert float(swept.cost_coll) - float(plain.cost_coll) > 0.9 * WALL_CONFIG.mppi.w_coll / WALL_CONFIG.mppi.epsilon
 
 
 @pytest.mark.parametrize("broad_phase", [False, True])
@@ -131,38 +142,16 @@ def test_step_clearance_is_the_min_over_the_substeps(broad_phase):
     # Candidates that move apart (the broad phase must pick points near each one, not their mean).
     sideways = jnp.asarray([[0.0, 0.26, -0.26]])
     actions = jnp.stack([jnp.asarray(CROSSING), 0.25 * jnp.asarray(CROSSING), jnp.zeros_like(CROSSING), sideways])
-    config = dataclasses.replace(WALL_CONFIG, broad_phase=broad_phase)
-    got = step_clearance(config, shape, jnp.asarray(ARC), actions, wall, jnp.ones(len(wall), bool))
+    broad = ControllerConfig().broad_phase if broad_phase else None
+    got = step_clearance(1.0, 4, broad, shape, jnp.asarray(ARC), actions, wall, jnp.ones(len(wall), bool))
     for action, value in zip(actions, np.asarray(got)):
         truth = min(float(jnp.min(robot_signed_distance(wall, jnp.asarray(ARC) + s * action, SPEC)))
                     for s in (0.25, 0.5, 0.75, 1.0))
         assert value == pytest.approx(truth, abs=1e-5)
     if not broad_phase:  # all actions in one call (sweep_first's form) give the same minima
-        shared = step_clearance(config, shape, jnp.asarray(ARC), actions, wall, jnp.ones(len(wall), bool), shared=True)
+        shared = step_clearance(1.0, 4, broad, shape, jnp.asarray(ARC), actions, wall, jnp.ones(len(wall), bool),
+                                shared=True)
         np.testing.assert_allclose(shared, got, atol=1e-6)
-
-
-def test_a_wall_moving_into_the_robot_is_seen_with_predicted_motion():
-    # The wall 0.3 m further away and coming at 0.3 m/s: out of reach if static, crossing the
-    # tip's path during the step if it moves on; the second step sees its velocity.
-    config = dataclasses.replace(WALL_CONFIG, safety_check=True)
-    wall0 = _wall() + np.array([-0.3, 0.0, 0.0], np.float32)
-    wall1 = _wall()  # where it is one step (dt = 1 s) later
-    velocity = cloud_velocity(jnp.asarray(wall1), jnp.ones(len(wall1), bool), jnp.asarray(wall0),
-                              jnp.ones(len(wall0), bool), 1.0)
-    np.testing.assert_allclose(velocity, np.tile([[0.3, 0.0, 0.0]], (len(wall0), 1)), atol=1e-6)
-    shape = make_shape("exact", SPEC)
-    mask = jnp.ones(len(wall1), bool)
-    ahead = jnp.asarray(wall1) + velocity  # where it is at the end of the next step
-    static = step_clearance(config, shape, jnp.asarray(ARC), jnp.asarray(CROSSING)[None], jnp.asarray(wall1), mask)
-    moving = step_clearance(config, shape, jnp.asarray(ARC), jnp.asarray(CROSSING)[None], jnp.asarray(wall1), mask,
-                            velocity)
-    truth = min(float(jnp.min(robot_signed_distance(jnp.asarray(wall1) + s * velocity, jnp.asarray(ARC) + s * CROSSING,
-                                                    SPEC))) for s in (0.25, 0.5, 0.75, 1.0))
-    assert float(moving[0]) == pytest.approx(truth, abs=1e-5)
-    assert float(moving[0]) != pytest.approx(float(static[0]), abs=1e-3)
-    assert float(jnp.min(robot_signed_distance(ahead, jnp.asarray(ARC), SPEC))) < float(
-        jnp.min(robot_signed_distance(jnp.asarray(wall1), jnp.asarray(ARC), SPEC)))
 
 
 def test_release_controls_zero_sum_and_bounds():
@@ -176,7 +165,7 @@ def test_release_controls_zero_sum_and_bounds():
 
 
 def test_release_sampling_keeps_zero_sum_in_the_rollouts():
-    config = dataclasses.replace(WALL_CONFIG, covariance=0.1, noise_clip=0.5, sampling="release")
+    config = dataclasses.replace(_core(WALL_CONFIG, covariance=0.1), sampling=Sampling("release", clip=0.5))
     action, state, _ = _run(config, _wall() + np.array([-5.0, 0.0, 0.0], np.float32))
     np.testing.assert_allclose(np.asarray(state.nominal).sum(-1), 0.0, atol=1e-6)
     np.testing.assert_allclose(np.asarray(action).sum(-1), 0.0, atol=1e-6)
@@ -207,15 +196,17 @@ def test_temperature_for_ess_is_the_smallest_grid_value_that_reaches_the_target(
 
 # A 1-link robot far from its only (distant) point, with almost uniform weights (lambda = 1e6), so the
 # update is the plain mean of the samples; the noise is rebuilt from the step's key split.
-MEAN_CONFIG = MPPIConfig(samples=64, horizon=3, covariance=0.1, noise_clip=0.5, sampling="release",
-                         temperature=1e6, max_points=512, broad_phase=False, w_perturbation=0.0)
+MEAN_CONFIG = ControllerConfig(MPPIConfig(samples=64, horizon=3, covariance=0.1, max_points=512),
+                               sampling=Sampling("release", clip=0.5), temperature=Fixed(1e6), broad_phase=None)
 FAR = np.array([[50.0, 50.0, 50.0]], np.float32)
 
 
 def _mean_step(config, nominal, goal=(1.0, 0.0, 1.5)):
     shape = make_shape("exact", SPEC)
-    state = init_state(SPEC, config, jax.random.PRNGKey(3))._replace(nominal=jnp.asarray(nominal, jnp.float32))
-    eps = np.asarray(sample_noise(config, jax.random.split(state.key)[1], state.nominal.shape, jnp.float32))
+    c = config.mppi
+    state = init_state(SPEC, c, jax.random.PRNGKey(3))._replace(nominal=jnp.asarray(nominal, jnp.float32))
+    eps = np.asarray(sample_noise(config.sampling, c.covariance, c.samples, jax.random.split(state.key)[1],
+                                  state.nominal.shape, jnp.float32))
     out = mppi_step(SPEC, config, shape, state, jnp.asarray(ARC), jnp.asarray(goal, jnp.float32), jnp.asarray(FAR),
                     jnp.ones(1, bool))
     return eps, out
@@ -224,14 +215,14 @@ def _mean_step(config, nominal, goal=(1.0, 0.0, 1.5)):
 def test_unclipped_update_keeps_a_saturated_plan_at_the_bound():
     # the plan's free rates beyond the bound (0.45 > 0.3): every sample's first free rate is near or at it
     nominal = np.broadcast_to(np.array([0.45, -0.45, 0.0], np.float32), (3, 1, 3))
-    bound = MEAN_CONFIG.control_bound
+    bound = MEAN_CONFIG.mppi.control_bound
     eps, (clipped_action, clipped_state, _) = _mean_step(MEAN_CONFIG, nominal)
     raw = nominal + eps.mean(axis=0)  # (H, M, 3): the truth of the unclipped update
     mean_of_bounded = np.asarray(release_controls(jnp.asarray(nominal[None] + eps)[..., :2], bound)).mean(axis=0)
     np.testing.assert_allclose(clipped_action, mean_of_bounded[0], atol=1e-5)
     assert np.abs(np.asarray(clipped_action)[0, :2]).max() < bound - 0.01  # the mean lies inside the bound
 
-    config = dataclasses.replace(MEAN_CONFIG, update_unclipped=True)
+    config = dataclasses.replace(MEAN_CONFIG, sampling=Sampling("release", clip=0.5, unclipped=True))
     eps2, (action, state, _) = _mean_step(config, nominal)
     np.testing.assert_array_equal(eps2, eps)
     expected = np.asarray(release_controls(jnp.asarray(raw[0, :, :2]), bound))
@@ -247,39 +238,24 @@ def test_unclipped_update_keeps_a_saturated_plan_at_the_bound():
 def test_goal_cost_of_the_selected_rollout(goal_reach):
     # the truth: rollout states rebuilt from the noise, the goal distance per state with numpy, and for
     # goal_reach its running minimum (terminal state charged its own distance)
-    config = dataclasses.replace(MEAN_CONFIG, horizon=6, temperature=0.02, w_goal_terminal=22.0,
-                                 goal_reach=goal_reach)
+    config = dataclasses.replace(_core(MEAN_CONFIG, horizon=6, w_goal_terminal=22.0, goal_reach=goal_reach),
+                                 temperature=Fixed(0.02))
     goal = np.array([-0.6, 0.0, 1.8], np.float32)
     nominal = np.broadcast_to(np.array([0.2, -0.2, 0.0], np.float32), (6, 1, 3))
     eps, (_, _, info) = _mean_step(config, nominal, goal)
-    u = np.asarray(release_controls(jnp.asarray(nominal[None] + eps)[..., :2], config.control_bound))
-    arcs = ARC[None, None] + config.dt * np.cumsum(u, axis=1)  # (N, H, 1, 3)
+    c = config.mppi
+    u = np.asarray(release_controls(jnp.asarray(nominal[None] + eps)[..., :2], c.control_bound))
+    arcs = ARC[None, None] + c.dt * np.cumsum(u, axis=1)  # (N, H, 1, 3)
     tips = np.asarray(forward_kinematics(jnp.asarray(arcs), SPEC))[..., -1, :3, 3].astype(np.float64)
     d = np.linalg.norm(tips - goal, axis=-1)  # (N, H)
     assert np.any(np.diff(d, axis=1) > 1e-3), "some rollouts must move away from the goal for this to mean anything"
     running = np.minimum.accumulate(d, axis=1) if goal_reach else d
-    cost = config.w_goal * running[:, :-1].sum(axis=1) + config.w_goal_terminal * d[:, -1]
+    cost = c.w_goal * running[:, :-1].sum(axis=1) + c.w_goal_terminal * d[:, -1]
     np.testing.assert_allclose(float(info.cost_goal), cost[int(info.selected)], rtol=1e-4)
 
 
-def test_new_options_are_validated():
-    for field, value in [("sampling", "free"), ("goal_reach", 1), ("update_unclipped", "yes"), ("noise_smoothing", 1.0),
-                         ("target_ess", 0.0), ("target_ess", 2.0),
-                         ("safety_check", 1), ("check_substeps", 0), ("check_margin", -0.1),
-                         ("predict_motion", "yes"), ("sweep_first", 1), ("follow_executed", 1), ("stall_steps", -1),
-                         ("stall_steps", 2.0),
-                         ("stall_ess", 0.0),
-                         ("stall_progress", 0.0)]:
-        with pytest.raises(ValueError, match=field):
-            MPPIConfig(**{field: value, "target_ess": 0.02} if field != "target_ess" else {field: value})
-    with pytest.raises(ValueError, match="stall_steps needs target_ess"):
-        MPPIConfig(stall_steps=10)
-    with pytest.raises(ValueError, match="follow_executed needs safety_check"):
-        MPPIConfig(follow_executed=True)
-
-
-STALL_CONFIG = MPPIConfig(samples=400, horizon=5, max_points=512, broad_phase=False, target_ess=0.1,
-                          stall_steps=3, stall_ess=0.02, stall_progress=0.05)
+STALL_CONFIG = ControllerConfig(MPPIConfig(samples=400, horizon=5, max_points=512, progress=0.05), broad_phase=None,
+                                temperature=EffectiveSampleSize(0.1, StallEscape(after=3, target=0.02)))
 
 
 def _stall_step(best_goal, stalled):
@@ -289,7 +265,7 @@ def _stall_step(best_goal, stalled):
     shape = make_shape("exact", spec)
     goal = jnp.array([1.0, 0.5, 3.5], jnp.float32)
     points = jnp.array([[0.8, 0.0, 2.0], [0.8, 0.3, 2.5], [-0.8, 0.0, 3.0]], jnp.float32)
-    state = init_state(spec, STALL_CONFIG, jax.random.PRNGKey(2))._replace(
+    state = init_state(spec, STALL_CONFIG.mppi, jax.random.PRNGKey(2))._replace(
         best_goal=jnp.float32(best_goal), stalled=jnp.int32(stalled))
     arc = jnp.full((2, 3), spec.length, jnp.float32)
     _, new, info = mppi_step(spec, STALL_CONFIG, shape, state, arc, goal, points, jnp.ones(3, bool))
@@ -300,7 +276,7 @@ def _stall_step(best_goal, stalled):
 def test_stall_count_restarts_on_progress_and_grows_without_it():
     d, _, new = _stall_step(np.inf, 0)  # the first step: progress from +inf
     assert (float(new.best_goal), int(new.stalled)) == (pytest.approx(d, abs=1e-5), 0)
-    _, _, new = _stall_step(d + 0.051, 7)  # fell by more than stall_progress: progress
+    _, _, new = _stall_step(d + 0.051, 7)  # fell by more than the progress threshold: progress
     assert (float(new.best_goal), int(new.stalled)) == (pytest.approx(d, abs=1e-5), 0)
     _, _, new = _stall_step(d + 0.049, 7)  # fell by less: no progress, the best is kept
     assert (float(new.best_goal), int(new.stalled)) == (pytest.approx(d + 0.049, abs=1e-5), 8)
@@ -310,60 +286,11 @@ def test_a_stalled_robot_gets_the_sharper_temperature():
     d = _stall_step(np.inf, 0)[0]
     # The same samples and costs (same key and cloud); only the stall count differs.
     infos = {stalled: _stall_step(d, stalled)[1] for stalled in (1, 2, 3, 9)}
-    n = STALL_CONFIG.samples
+    n, ess = STALL_CONFIG.mppi.samples, STALL_CONFIG.temperature
     for stalled, info in infos.items():  # the count after the step is stalled + 1
-        target = STALL_CONFIG.stall_ess if stalled + 1 > STALL_CONFIG.stall_steps else STALL_CONFIG.target_ess
+        target = ess.escape.target if stalled + 1 > ess.escape.after else ess.target
         assert float(info.ess) >= target * n * (1 - 1e-4)
-    assert float(infos[1].temperature) == float(infos[2].temperature)  # counts 2, 3: not beyond stall_steps
+    assert float(infos[1].temperature) == float(infos[2].temperature)  # counts 2, 3: not beyond the escape's
     assert float(infos[3].temperature) < float(infos[2].temperature)  # count 4: stalled
-    assert float(infos[3].ess) < STALL_CONFIG.target_ess * n  # sharper than the unstalled target allows
+    assert float(infos[3].ess) < ess.target * n  # sharper than the unstalled target allows
     assert float(infos[9].temperature) == float(infos[3].temperature)
-
-
-def test_paper_and_release_presets_are_unchanged():
-    old_release = MPPIConfig(samples=800, horizon=20, covariance=0.1, noise_clip=0.5, w_goal_terminal=22.0,
-                             w_coll_terminal=1.1, w_perturbation=0.1, max_points=512)
-    assert mppi_config("release", "cluttered", 5, n_points=500) == old_release
-    assert mppi_config("release", "cluttered", 7, n_points=500) == dataclasses.replace(old_release, horizon=7)
-    assert mppi_config("release", "spheres", 4, n_points=8, margin_extra=0.7) == dataclasses.replace(
-        old_release, samples=1000, horizon=12, max_points=256, safety_margin=0.05 + 0.7)
-    assert mppi_config("paper", "cluttered", 7, n_points=500) == MPPIConfig(max_points=512)
-    for config in (old_release, MPPIConfig()):
-        assert (config.sampling, config.noise_smoothing, config.target_ess, config.safety_check) == (
-            "project", 0.0, None, False)
-        assert not config.predict_motion
-
-
-def test_ours_per_scenario_fields():
-    spheres = mppi_config("ours", "spheres", 4, n_points=8, margin_extra=0.7)
-    cluttered = mppi_config("ours", "cluttered", 4, n_points=8)
-    assert spheres.update_unclipped and spheres.goal_reach and spheres.convex_link == 0
-    assert 0 < spheres.noise_smoothing < 1 and cluttered.noise_smoothing == 0
-    assert spheres.sweep_first and not cluttered.sweep_first
-    assert spheres.follow_executed and not cluttered.follow_executed
-    assert cluttered.update_unclipped and not cluttered.goal_reach and cluttered.convex_link > 0
-    assert cluttered.w_coll == cluttered.w_coll_terminal < spheres.w_coll
-    assert cluttered.stall_steps > 0 and spheres.stall_steps == 0 and cluttered.hold_time == 0
-    assert cluttered.route_after == cluttered.stall_steps and spheres.route_after == 0
-    for scenario in ("charging", "custom"):
-        other = mppi_config("ours", scenario, 4, n_points=8, margin_extra=0.7)
-        assert not other.update_unclipped and not other.goal_reach and other.convex_link == 0
-        assert other.noise_smoothing == 0 and not other.sweep_first and not other.follow_executed
-        assert dataclasses.replace(other, update_unclipped=True, goal_reach=True, samples=spheres.samples,
-                                   horizon=spheres.horizon, noise_smoothing=spheres.noise_smoothing,
-                                   sweep_first=True, follow_executed=True) == spheres
-
-
-@pytest.mark.parametrize("broad_phase", [True, False])
-def test_rollout_distances_per_horizon_step_clouds(broad_phase):
-    spec = RobotSpec(2)
-    shape = make_shape("exact", spec)
-    config = MPPIConfig(samples=8, horizon=3, max_points=64, broad_phase=broad_phase)
-    rng = np.random.default_rng(0)
-    arcs = jnp.asarray(2.0 + rng.uniform(-0.2, 0.2, (8, 3, 2, 3)), jnp.float32)
-    clouds = jnp.asarray(rng.uniform([-2, -2, 0], [2, 2, 4], (3, 64, 3)), jnp.float32)
-    mask = jnp.arange(64) < 50
-    got = np.asarray(rollout_min_distances(config, shape, arcs, clouds, mask))
-    for k in range(3):  # horizon step k against cloud k alone
-        np.testing.assert_allclose(got[:, k], np.asarray(
-            rollout_min_distances(config, shape, arcs[:, k:k + 1], clouds[k], mask))[:, 0], atol=1e-6)

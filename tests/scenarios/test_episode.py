@@ -9,12 +9,13 @@ import dataclasses
 import math
 import os
 import signal
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
 
-from ncedf.mppi import MPPIConfig
+from ncedf.controller import config_from_dict
 from recorder import load_run
 from scenarios import episode as episode_mod
 from scenarios.episode import Episode, EpisodeSettings, episode_name, goal_errors, goal_position, run_episode
@@ -126,7 +127,7 @@ def test_recorded_settings_rebuild_the_episode(twice):
     settings, results = twice
     run = read(results[0])
     assert EpisodeSettings.from_dict(run.meta["settings"]) == settings
-    assert MPPIConfig(**run.meta["mppi"]) == Episode(settings).scene.config
+    assert config_from_dict(run.meta["mppi"]) == Episode(settings).scene.config
     assert run.meta["model"]["id"] and run.meta["model"]["metrics"]["mae"] > 0
     assert run.meta["world"]["clouds"][0]["points"] == CLOUD_POINTS == run.meta["observed_points"]
     assert run.meta["versions"]["jax"]
@@ -198,3 +199,20 @@ def test_goal_errors_of_a_pose_goal():
     assert distance == pytest.approx(0.3) and angle == pytest.approx(math.pi / 2)
     assert goal_errors(goal, goal) == pytest.approx((0.0, 0.0))
     assert goal_errors(tip, goal[:3, 3]) == (pytest.approx(0.3), None)
+
+
+@pytest.mark.parametrize("path", sorted((Path(__file__).parents[2] / "results" / "closed_loop").glob("*.mcap")))
+def test_recordings_made_before_the_stages_rebuild_their_episode(path):
+    """The committed recordings hold the flat controller settings of their day; read back, they are
+    the controller that their settings build today."""
+    run = load_run(path)
+    assert "safety_check" in run.meta["mppi"]  # the flat form
+    settings = EpisodeSettings.from_dict(run.meta["settings"])
+    assert config_from_dict(run.meta["mppi"]) == Episode(settings).scene.config
+
+
+def test_removed_experiments_in_old_settings_are_named():
+    with pytest.raises(ValueError, match="predict_motion"):
+        config_from_dict({"samples": 8, "temperature": 0.02, "predict_motion": True})
+    with pytest.raises(ValueError, match="unknown controller settings"):
+        config_from_dict({"samples": 8, "temperature": 0.02, "wobble": 1})

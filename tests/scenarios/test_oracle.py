@@ -14,7 +14,7 @@ import jax
 import numpy as np
 import pytest
 
-from ncedf.mppi import release_controls
+from ncedf.sampling import release_controls
 from ncedf.robot import RobotSpec, end_effector_pose, forward_kinematics, validate_state
 from scenarios.oracle import OracleConfig, closest_approach, plan_reach
 from scenarios.world import Box, MovingSphere, World, true_min_distance

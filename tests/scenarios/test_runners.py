@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 
 from ncedf.geometry import robot_mesh_arrays
+from ncedf.presets import POINT_BUCKET, Observation, point_capacity, preset
 from ncedf.robot import RobotSpec, end_effector_pose
 from recorder import inspect as recorder_inspect
 from recorder import load_run
 from scenarios import charging, cluttered, custom, spheres
 from scenarios import episode as episode_mod
 from scenarios.episode import Episode, EpisodeSettings
-from scenarios.presets import POINT_BUCKET, mppi_config, point_capacity
 from scenarios.world import true_min_distance
 from test_world import box_sdf_np
 
@@ -112,20 +112,24 @@ def test_custom_runner_names_a_bad_obstacle_file_or_goal(tmp_path, capsys):
 
 # ---------------------------------------------------------------- presets
 def test_presets_follow_paper_setups():
-    release = {links: mppi_config("release", "cluttered", links, n_points=500) for links in (4, 5, 7)}
-    assert [(c.samples, c.horizon) for c in release.values()] == [(800, 20), (800, 20), (800, 7)]
-    r = release[4]
-    assert (r.covariance, r.noise_clip, r.w_goal_terminal, r.w_coll_terminal, r.w_perturbation) == (
+    surfaces, balls = Observation(500), Observation(8, ball_radius=0.7)
+    release = {links: preset("release", RobotSpec(links), surfaces) for links in (4, 5, 7)}
+    assert [(c.mppi.samples, c.mppi.horizon) for c in release.values()] == [(800, 20), (800, 20), (800, 7)]
+    r = release[4].mppi
+    assert (r.covariance, release[4].sampling.clip, r.w_goal_terminal, r.w_coll_terminal, r.w_perturbation) == (
         0.1, 0.5, 22.0, 1.1, 0.1)
-    assert (r.w_goal, r.w_coll, r.w_state, r.temperature, r.safety_margin) == (12.0, 1.1, 50.0, 0.02, 0.05)
-    s = mppi_config("release", "spheres", 4, n_points=8, margin_extra=0.7)
+    assert (r.w_goal, r.w_coll, r.w_state, release[4].temperature.value, r.safety_margin) == (
+        12.0, 1.1, 50.0, 0.02, 0.05)
+    s = preset("release", RobotSpec(4), balls).mppi
     assert (s.samples, s.horizon, s.safety_margin) == (1000, 12, pytest.approx(0.75))
-    p = mppi_config("paper", "cluttered", 7, n_points=500)
-    assert (p.samples, p.horizon, p.covariance, p.noise_clip, p.w_goal_terminal) == (800, 20, 0.05, None, 0.0)
-    small = mppi_config("paper", "spheres", 4, n_points=8, samples=16, horizon=3)
-    assert (small.samples, small.horizon) == (16, 3)
+    p = preset("paper", RobotSpec(7), surfaces)
+    assert (p.mppi.samples, p.mppi.horizon, p.mppi.covariance, p.sampling.clip, p.mppi.w_goal_terminal) == (
+        800, 20, 0.05, None, 0.0)
+    assert p.safety is None and p.model is None and p.recovery is None
+    small = preset("paper", RobotSpec(4), balls, samples=16, horizon=3)
+    assert (small.mppi.samples, small.mppi.horizon) == (16, 3)
     with pytest.raises(ValueError, match="best"):
-        mppi_config("best", "cluttered", 4, n_points=1)
+        preset("best", RobotSpec(4), surfaces)
 
 
 def test_point_capacity_rounds_up_to_the_bucket():
@@ -143,7 +147,7 @@ def test_cluttered_scene_is_the_papers():
     assert [s.radius for s in world.spheres] == [0.5, 0.5] and all(s.half_period == 5.0 for s in world.spheres)
     area = sum(2 * (x * y + y * z + x * z) for _, (x, y, z) in paper_boxes)
     assert abs(scene.observer.n_points - (4.0 * area + 60)) < 0.1 * (4.0 * area + 60)  # about 500
-    assert scene.config.max_points >= scene.observer.n_points and scene.config.horizon == 7
+    assert scene.config.mppi.max_points >= scene.observer.n_points and scene.config.mppi.horizon == 7
     assert (tuple(scene.goal), scene.tolerance, scene.max_steps) == ((4.8, 0.0, 3.6), 0.4, 300)
 
 
@@ -154,7 +158,7 @@ def test_cluttered_density_option_sets_the_points_per_face(density):
     faces = [a for _, (x, y, z) in cluttered.BOXES for a in (x * y, x * y, y * z, y * z, x * z, x * z)]
     expected = sum(round(density * a) for a in faces) + len(cluttered.SPHERES) * cluttered.SPHERE_POINTS
     assert scene.observer.n_points == expected
-    assert scene.config.max_points >= expected
+    assert scene.config.mppi.max_points >= expected
     with pytest.raises(ValueError, match=r"\['spacing'\].*known: density"):
         Episode(EpisodeSettings("cluttered", 4, 0, options=(("spacing", "1"),)))
 
@@ -186,8 +190,8 @@ def test_spheres_environments_are_accepted_and_deterministic(env_seed, goal):
 def test_spheres_scene_observes_centres_with_a_wider_margin():
     scene = Episode(EpisodeSettings("spheres", 4, 0, env_seed=5, shape="exact")).scene
     assert scene.observer.n_points == 8 and scene.observer.observe(0.0).shape == (8, 3)
-    assert (scene.config.samples, scene.config.horizon) == (1000, 12)
-    assert scene.config.safety_margin == pytest.approx(0.05 + 0.7)
+    assert (scene.config.mppi.samples, scene.config.mppi.horizon) == (1000, 12)
+    assert scene.config.mppi.safety_margin == pytest.approx(0.05 + 0.7)
     assert (scene.tolerance, scene.max_steps) == (0.2, 200)
 
 
@@ -216,35 +220,26 @@ def test_charging_goal_is_a_pose_approaching_along_x():
     np.testing.assert_allclose(goal[:3, :3] @ goal[:3, :3].T, np.eye(3), atol=1e-12)
     assert np.linalg.det(goal[:3, :3]) == pytest.approx(1.0)
     np.testing.assert_allclose(goal[:3, 3], charging.port_position(3))
-    assert scene.config.max_points >= scene.observer.n_points
+    assert scene.config.mppi.max_points >= scene.observer.n_points
 
 
-def test_a_custom_convex_mesh_gets_the_cluttered_scenes_controller_fields(tmp_path):
+def test_every_runner_gets_the_controller_of_the_robot_and_what_it_observes(tmp_path):
     import trimesh
 
-    box = trimesh.creation.box(extents=(1.0, 3.0, 2.0))
-    open_box = trimesh.Trimesh(box.vertices, box.faces[:-2])  # one face's two triangles removed
-    ring = trimesh.creation.torus(major_radius=1.2, minor_radius=0.3)
-    files = {"box": tmp_path / "box.stl", "open": tmp_path / "open.stl", "ring": tmp_path / "ring.stl",
-             "cloud": tmp_path / "cloud.npy"}
-    box.export(files["box"])
-    open_box.export(files["open"])
-    ring.export(files["ring"])
-    np.save(files["cloud"], np.asarray(box.vertices))  # the box's corners as a bare cloud
-
-    def scene(name, controller="ours"):
-        options = (("goal_position", "4,0,4"), ("obstacles", str(files[name])), ("offset", "3,0,3"))
-        return Episode(EpisodeSettings("custom", 4, 0, controller=controller, shape="exact", options=options)).scene
-
-    scenes = {name: scene(name) for name in files}
-    for name, convex in [("box", True), ("open", False), ("ring", False), ("cloud", False)]:
-        s = scenes[name]
-        assert s.info["convex_mesh"] is convex, name
-        expected = mppi_config("ours", "cluttered" if convex else "custom", 4, n_points=s.observer.n_points)
-        assert s.config == expected, name
-    assert scenes["box"].config.convex_link > 0 and scenes["ring"].config.convex_link == 0
-    release = scene("box", "release")  # the release has no fields per scenario: the same either way
-    assert release.config == mppi_config("release", "custom", 4, n_points=release.observer.n_points)
+    box, ring = trimesh.creation.box(extents=(1.0, 3.0, 2.0)), trimesh.creation.torus(major_radius=1.2,
+                                                                                      minor_radius=0.3)
+    box.export(tmp_path / "box.stl")
+    ring.export(tmp_path / "ring.stl")
+    settings = [EpisodeSettings("cluttered", 5, 0, shape="exact"), EpisodeSettings("charging", 4, 0, shape="exact"),
+                EpisodeSettings("spheres", 4, 0, shape="exact")]
+    settings += [EpisodeSettings("custom", 4, 0, shape="exact", options=(
+        ("goal_position", "4,0,4"), ("obstacles", str(tmp_path / name)), ("offset", "3,0,3")))
+        for name in ("box.stl", "ring.stl")]
+    for s in settings:
+        for controller in ("ours", "release"):
+            scene = Episode(dataclasses.replace(s, controller=controller)).scene
+            seen = Observation(scene.observer.n_points, ball_radius=scene.world.margin_extra)
+            assert scene.config == preset(controller, scene.spec, seen), (s.scenario, controller)
 
 
 @pytest.mark.parametrize("links, env_seed", [(4, 0), (5, 8)])

@@ -1,0 +1,235 @@
+"""The controller: the MPPI core composed with its stages, and the validating shell around it.
+
+A :class:`ControllerConfig` names one setting per stage, each a small frozen
+dataclass of its own module:
+
+* ``mppi``: the core (``ncedf.mppi``: sample, roll out, cost, weight, update, shift);
+* ``sampling``: projected or release rates, low-pass noise, the plan's update (``ncedf.sampling``);
+* ``temperature``: fixed, or chosen for an effective sample size, with a stall escape
+  (``ncedf.temperature``);
+* ``broad_phase``: the candidate points each rollout state is scored against, or None for
+  every point (``ncedf.broad_phase``);
+* ``model``: None (the observed cloud alone) or the convex model of the cloud
+  (``ncedf.obstacle_model``);
+* ``safety``: None or the check of the executed action (``ncedf.safety``);
+* ``recovery``: None or the route round the static obstacles (``ncedf.recovery``), which
+  plans round the model's polytopes.
+
+The jitted step (``ncedf.mppi.mppi_step``) runs the core with the stages that act
+inside it; :class:`Controller` validates the inputs, pads the cloud to the
+capacity, fits the obstacle model (numpy, outside the jitted step) and runs the
+recovery around the step. Presets that compose stages are in ``ncedf.presets``.
+
+:func:`config_to_dict` and :func:`config_from_dict` are a recording's metadata
+round trip; :func:`config_from_dict` also reads the flat settings that recordings
+made before the stages hold.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ncedf.broad_phase import BroadPhase
+from ncedf.mppi import MPPIConfig, MPPIState, init_state, mppi_step
+from ncedf.obstacle_model import ConvexModel
+from ncedf.recovery import RouteRecovery, RouteState, no_route, supervise
+from ncedf.robot import RobotSpec, validate_state
+from ncedf.route import plan_route, tips
+from ncedf.safety import SafetyFilter, step_clearance
+from ncedf.sampling import Sampling
+from ncedf.shapes import Shape
+from ncedf.temperature import EffectiveSampleSize, Fixed, StallEscape
+
+#: The stages' types by field (a tuple where a stage has several kinds; None allowed where listed).
+STAGES = {
+    "mppi": ((MPPIConfig,), False), "sampling": ((Sampling,), False),
+    "temperature": ((Fixed, EffectiveSampleSize), False), "broad_phase": ((BroadPhase,), True),
+    "model": ((ConvexModel,), True), "safety": ((SafetyFilter,), True), "recovery": ((RouteRecovery,), True),
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class ControllerConfig:
+    """The core and its stages (module docstring); the defaults are the paper's controller."""
+
+    mppi: MPPIConfig = MPPIConfig()
+    sampling: Sampling = Sampling()
+    temperature: Fixed | EffectiveSampleSize = Fixed()
+    broad_phase: BroadPhase | None = BroadPhase()
+    model: ConvexModel | None = None
+    safety: SafetyFilter | None = None
+    recovery: RouteRecovery | None = None
+
+    def __post_init__(self):
+        for name, (kinds, optional) in STAGES.items():
+            value = getattr(self, name)
+            if not (isinstance(value, kinds) or (optional and value is None)):
+                allowed = " or ".join([k.__name__ for k in kinds] + (["None"] if optional else []))
+                raise ValueError(f"ControllerConfig.{name} must be {allowed}, got {value!r}")
+        if self.recovery is not None and self.model is None:
+            raise ValueError("ControllerConfig.recovery plans round the obstacle model: give a model too")
+
+
+class ControllerState(NamedTuple):
+    """The jitted step's :class:`ncedf.mppi.MPPIState`, the previous observation (points (P, 3),
+    mask (P,); all False at first) for the obstacle model, and the route being followed."""
+
+    mppi: MPPIState
+    previous: np.ndarray
+    previous_mask: np.ndarray
+    route: RouteState
+
+
+#: The check of a route's moves (jitted apart from the step: compiled only when a route runs).
+_check_moves = jax.jit(step_clearance, static_argnums=(0, 1, 2), static_argnames="shared")
+
+
+class Controller:
+    """MPPI for ``spec`` with a shape representation from :func:`ncedf.shapes.make_shape`.
+
+    ``state = controller.init(key)``, then ``action, state, info = controller.step(state, arc, goal, points)``.
+    """
+
+    def __init__(self, spec: RobotSpec, shape, config: ControllerConfig | None = None):
+        if not isinstance(spec, RobotSpec):
+            raise ValueError(f"spec must be a RobotSpec, got {type(spec).__name__}")
+        config = ControllerConfig() if config is None else config
+        if not isinstance(config, ControllerConfig):
+            raise ValueError(f"config must be a ControllerConfig, got {type(config).__name__}")
+        if not isinstance(shape, Shape):
+            raise ValueError(f"shape must be a representation from ncedf.shapes.make_shape, got {shape!r}")
+        if shape.spec.n_links != spec.n_links:
+            raise ValueError(f"the shape is for {shape.spec.n_links} links, the robot has {spec.n_links}")
+        self.spec, self.shape, self.config = spec, shape, config
+
+    def init(self, key) -> ControllerState:
+        """Zero plan (paper: the initial reference is zero), the key, no observation yet, no route."""
+        cap = self.config.mppi.max_points
+        return ControllerState(init_state(self.spec, self.config.mppi, key), np.zeros((cap, 3), np.float32),
+                               np.zeros(cap, bool), no_route(self.spec))
+
+    def pad_points(self, obstacle_points):
+        """Validate an obstacle cloud (P, 3) and pad it to the capacity: (points, mask)."""
+        cap = self.config.mppi.max_points
+        pts = np.zeros((0, 3), np.float32) if obstacle_points is None else np.asarray(obstacle_points, np.float32)
+        if pts.size == 0:
+            pts = pts.reshape(0, 3)
+        if pts.ndim != 2 or pts.shape[1] != 3:
+            raise ValueError(f"obstacle_points must have shape (P, 3), got {pts.shape}")
+        if not np.all(np.isfinite(pts)):
+            bad = int(np.argwhere(~np.isfinite(pts))[0, 0])
+            raise ValueError(f"obstacle_points contain NaN or inf (first at row {bad}: {pts[bad].tolist()})")
+        if pts.shape[0] > cap:
+            raise ValueError(f"{pts.shape[0]} obstacle points exceed the capacity max_points={cap}; "
+                             "raise MPPIConfig.max_points")
+        padded = np.zeros((cap, 3), np.float32)
+        padded[: pts.shape[0]] = pts
+        mask = np.zeros(cap, bool)
+        mask[: pts.shape[0]] = True
+        return padded, mask
+
+    def check_goal(self, goal):
+        """Validate a goal: position (3,) or pose (4, 4), finite."""
+        g = np.asarray(goal, dtype=np.float32)
+        if g.shape not in ((3,), (4, 4)):
+            raise ValueError(f"goal must be a position (3,) or a pose (4, 4), got shape {g.shape}")
+        if not np.all(np.isfinite(g)):
+            raise ValueError(f"goal contains NaN or inf: {g.tolist()}")
+        return jnp.asarray(g)
+
+    def _inputs(self, state, arc, goal, obstacle_points):
+        if not isinstance(state, ControllerState):
+            raise ValueError(f"state must be a ControllerState from init(), got {type(state).__name__}")
+        expected = (self.config.mppi.horizon, self.spec.n_links, 3)
+        if tuple(np.shape(state.mppi.nominal)) != expected:
+            raise ValueError(f"the state's plan must have shape {expected}, got {np.shape(state.mppi.nominal)}")
+        arc = jnp.asarray(validate_state(arc, self.spec), jnp.float32)
+        points, mask = self.pad_points(obstacle_points)
+        model = self.config.model
+        polytopes = (None if model is None else
+                     model.fit(points, mask, state.previous, state.previous_mask, self.config.mppi.dt))
+        return arc, self.check_goal(goal), points, mask, polytopes
+
+    def check_moves(self, arc, points, mask, polytopes):
+        """``moves (C, M, 3) -> (C,)``: the safety filter's clearance of moves from ``arc`` over a step."""
+        substeps = (self.config.safety or SafetyFilter()).substeps
+        return lambda moves: _check_moves(self.config.mppi.dt, substeps, self.config.broad_phase, self.shape, arc,
+                                          moves, points, mask, polytopes=polytopes)
+
+    def step(self, state: ControllerState, arc, goal, obstacle_points=None):
+        """One control step with validated inputs.
+
+        Args:
+          state: from ``init`` or the previous step.  arc: (M, 3) current arc lengths, m (a valid state).
+          goal: position (3,) or pose (4, 4) in the world frame.
+          obstacle_points: (P, 3) world points, P <= max_points; None or empty for no obstacles.
+        Returns:
+          action (M, 3) m/s, the next :class:`ControllerState`, and an :class:`ncedf.mppi.MPPIInfo`.
+        Raises:
+          ValueError (InvalidStateError for the state) naming the bad value;
+          FloatingPointError if the computation produced a non-finite action.
+        """
+        arc, goal, points, mask, polytopes = self._inputs(state, arc, goal, obstacle_points)
+        action, mppi, info = mppi_step(self.spec, self.config, self.shape, state.mppi, arc, goal, points, mask,
+                                       polytopes)
+        route, c = state.route, self.config
+        if c.recovery is not None and goal.shape == (3,):
+            action, route, mppi = supervise(c.recovery, self.spec, self.check_moves(arc, points, mask, polytopes),
+                                            c.mppi.safety_margin, c.mppi.control_bound, c.mppi.dt, route, mppi,
+                                            arc, goal, polytopes, action)
+        if not bool(jnp.all(jnp.isfinite(action))):
+            raise FloatingPointError("MPPI produced a non-finite action; the inputs or the shape model are broken")
+        return action, ControllerState(mppi, points, mask, route), info
+
+    def warm_up(self, state: ControllerState, arc, goal, obstacle_points=None) -> None:
+        """Compile what :meth:`step` runs, before a closed loop's first timed step (results
+        discarded): the step and, with a recovery stage, the route's programs (a plan to where the
+        tip already is, and the check of a route's moves), which would otherwise compile mid-episode."""
+        jax.block_until_ready(self.step(state, arc, goal, obstacle_points))
+        arc, goal, points, mask, polytopes = self._inputs(state, arc, goal, obstacle_points)
+        if self.config.recovery is None or goal.shape != (3,):
+            return
+        here = np.asarray(arc)
+        plan_route(self.spec, polytopes, here, tips(here[None], self.spec)[0], state.mppi.key,
+                   self.config.recovery.route)
+        jax.block_until_ready(self.check_moves(arc, points, mask, polytopes)(jnp.zeros((2,) + arc.shape)))
+
+
+def config_to_dict(config: ControllerConfig) -> dict:
+    """The metadata form: the core's fields at the top level, each stage a dict (with its kind's
+    ``type`` where a stage has several) or None."""
+    out = dataclasses.asdict(config.mppi)
+    for name, (kinds, _) in STAGES.items():
+        if name == "mppi":
+            continue
+        stage = getattr(config, name)
+        out[name] = None if stage is None else dataclasses.asdict(stage)
+        if stage is not None and len(kinds) > 1:
+            out[name]["type"] = type(stage).__name__
+    return out
+
+
+def config_from_dict(data: dict) -> ControllerConfig:
+    """The inverse of :func:`config_to_dict`; the flat settings of older recordings are read too
+    (``ncedf.legacy``). Raises ValueError naming an unknown field."""
+    if not isinstance(data.get("temperature"), dict):
+        from ncedf.legacy import legacy_config
+
+        return legacy_config(data)
+    data = dict(data)
+    stages = {name: data.pop(name, None) for name in STAGES if name != "mppi"}
+    temperature = dict(stages["temperature"])
+    kind = {"Fixed": Fixed, "EffectiveSampleSize": EffectiveSampleSize}[temperature.pop("type")]
+    if kind is EffectiveSampleSize and temperature.get("escape") is not None:
+        temperature["escape"] = StallEscape(**temperature["escape"])
+    built = {"temperature": kind(**temperature)}
+    for name, cls in (("sampling", Sampling), ("broad_phase", BroadPhase), ("model", ConvexModel),
+                      ("safety", SafetyFilter), ("recovery", RouteRecovery)):
+        built[name] = None if stages[name] is None else cls(**stages[name])
+    return ControllerConfig(mppi=MPPIConfig(**data), **built)
+

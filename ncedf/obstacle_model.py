@@ -1,0 +1,58 @@
+"""The obstacle-model stage: what the controller scores besides the observed points.
+
+Without a model the rollouts are scored against the observed cloud alone (the
+paper). A cloud sampled sparsely on obstacle surfaces has holes wider than the
+robot, and a link can slide into a face between its points. :class:`ConvexModel`
+closes each convex cluster of the cloud (``ncedf.convex``): the cloud's rows that
+did not move since the previous observation and those that did are clustered
+apart (static clusters whose bounding boxes lie within ``link`` merge, so a
+sparsely sampled box stays whole), a cluster on a sphere is its ball, a convex
+one its polytope, and a non-convex one is left to the cloud. Each rollout
+state's distance is then the smaller of the representation's and a lower bound
+of the body's clearance to the model, every polytope moved at the mean velocity
+of its points to the state's time.
+
+The fit runs in numpy outside the jitted step (a static group of points is
+fitted once and cached), so it is the controller shell's job
+(``ncedf.controller``); this module holds the setting and the fit.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from ncedf.convex import Polytopes, fit_polytopes, static_rows
+from ncedf.validate import check_fields
+
+
+@dataclasses.dataclass(frozen=True)
+class ConvexModel:
+    """The convex model of the cloud at single-linkage distance ``link``, m: above the gaps
+    between the samples of one obstacle, below the gaps between obstacles."""
+
+    link: float = 1.0
+
+    def __post_init__(self):
+        check_fields(self, positive=("link",))
+
+    def fit(self, points: np.ndarray, mask: np.ndarray, previous: np.ndarray, previous_mask: np.ndarray,
+            dt: float) -> Polytopes:
+        """The polytopes of the padded cloud (P, 3) with mask (P,), given the previous
+        observation (P, 3), (P,) (all False at first: every row counts as moving) dt seconds
+        earlier. Only the static rows' clusters merge by their bounding boxes (distinct moving
+        obstacles would chain together through the boxes of the clusters between them)."""
+        points, mask = np.asarray(points), np.asarray(mask)
+        previous, previous_mask = np.asarray(previous), np.asarray(previous_mask)
+        static = static_rows(points, mask, previous, previous_mask)
+        velocity = cloud_velocity(points, mask, previous, previous_mask, dt)
+        return fit_polytopes(points[mask], self.link, static[mask], velocity[mask], bounds=(True,))
+
+
+def cloud_velocity(points: np.ndarray, mask: np.ndarray, previous: np.ndarray, previous_mask: np.ndarray,
+                   dt: float) -> np.ndarray:
+    """(P, 3) m/s: each row's displacement since the previous cloud over dt; zero where either
+    cloud has padding (the scenarios observe row ``i`` as the same physical point every step)."""
+    both = (mask & previous_mask)[:, None]
+    return np.where(both, (points - previous) / np.float32(dt), np.float32(0.0)).astype(np.float32)

@@ -1,0 +1,155 @@
+"""Controller presets: factory functions that compose the core and its stages for a robot and what it observes.
+
+* :func:`paper`: paper Sec. VI-A: 800 rollouts, horizon 20, covariance 0.05 I,
+  lambda 0.02, no safety filter, the cloud alone.
+* :func:`release`: the authors' public release (``docs/paper-setups.md``):
+  covariance 0.1 I with the noise clipped to +-0.5, terminal weights 22 (goal)
+  and 1.1 (collision), a control-perturbation cost 0.1; 800 rollouts with a
+  horizon of 20 (7 above 6 links), and 1000 rollouts with a horizon of 12 where
+  the obstacles are observed as balls.
+* :func:`ours` (the default): the release with its two-rate sampling (the third
+  rate minus the other two), a temperature for an effective sample size of 2%
+  of the rollouts, the safety filter and the unclipped plan update, and then by
+  what the robot observes:
+
+  - obstacles observed completely, as balls (centre and radius): nothing is
+    hidden, so speed only shortens the time they have to reach the robot; it
+    races: the closest-approach goal cost, low-pass noise, each rollout's
+    first step scored over its sweep, and the warm start from the executed
+    controls;
+  - obstacles observed as points on their surfaces: the points leave holes
+    between them, so it closes the cloud's convex clusters (the convex model),
+    is repelled less by the closed surfaces (collision weights 0.4), and escapes
+    stalls: sharper weights after 30 steps without progress, and a route round
+    the static polytopes.
+
+Nothing here depends on a scenario: a world is described by :class:`Observation`.
+The evidence for each choice is in ``results/README.md``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+from ncedf.controller import ControllerConfig
+from ncedf.mppi import MPPIConfig
+from ncedf.obstacle_model import ConvexModel
+from ncedf.recovery import RouteRecovery
+from ncedf.robot import RobotSpec
+from ncedf.safety import SafetyFilter
+from ncedf.sampling import Sampling
+from ncedf.temperature import EffectiveSampleSize, Fixed, StallEscape
+
+#: Capacity granularity of the obstacle cloud (MPPIConfig.max_points), points: clouds of similar
+#: sizes share one compiled controller.
+POINT_BUCKET = 256
+#: Links above which the release shortens the horizon.
+RELEASE_LONG_ROBOT = 6
+#: ``ours`` with surface points: the convex model's single-linkage distance, m: above the longest
+#: edge of a box's minimum spanning tree at 4 points per m^2 (0.88 m), below the 1.39 m between the
+#: closest of the paper's boxes.
+CONVEX_LINK = 1.0
+#: ``ours`` with surface points: the collision weights (running and terminal) with the convex model.
+SURFACE_W_COLL = 0.4
+#: ``ours`` with surface points: steps without progress before the stall escape and the route.
+STALL_STEPS = 30
+#: ``ours`` with surface points: the stall escape's effective sample size, a share of the rollouts.
+STALL_ESS = 0.005
+#: ``ours`` with balls: the low-pass noise's beta (a rollout keeps its direction over the horizon).
+BALLS_SMOOTHING = 0.9
+
+
+@dataclasses.dataclass(frozen=True)
+class Observation:
+    """What the robot observes, as the presets read it.
+
+    Attributes:
+      n_points: size of the observed cloud (sets the capacity).
+      ball_radius: > 0 where every point is the centre of a ball of this radius, m (the
+        obstacles are observed completely); 0 where the points lie on obstacle surfaces.
+    """
+
+    n_points: int
+    ball_radius: float = 0.0
+
+    def __post_init__(self):
+        if isinstance(self.n_points, bool) or not isinstance(self.n_points, int) or self.n_points < 0:
+            raise ValueError(f"Observation.n_points must be an integer >= 0, got {self.n_points!r}")
+        if not self.ball_radius >= 0:
+            raise ValueError(f"Observation.ball_radius must be >= 0, got {self.ball_radius!r}")
+
+
+def point_capacity(n_points: int) -> int:
+    """The smallest multiple of ``POINT_BUCKET`` that holds ``n_points`` (at least one bucket)."""
+    if n_points < 0:
+        raise ValueError(f"n_points must be >= 0, got {n_points}")
+    return max(1, -(-n_points // POINT_BUCKET)) * POINT_BUCKET
+
+
+def _core(observation: Observation, samples: int, horizon: int, **fields) -> MPPIConfig:
+    """The core sized to the observation: its capacity, and the balls' radius added to the margin."""
+    return MPPIConfig(samples=samples, horizon=horizon, max_points=point_capacity(observation.n_points),
+                      safety_margin=MPPIConfig.safety_margin + observation.ball_radius, **fields)
+
+
+def paper(spec: RobotSpec, observation: Observation) -> ControllerConfig:
+    """Paper Sec. VI-A."""
+    return ControllerConfig(mppi=_core(observation, 800, 20))
+
+
+def _release_sizes(spec: RobotSpec, observation: Observation) -> tuple[int, int]:
+    if observation.ball_radius > 0:
+        return 1000, 12
+    return 800, (20 if spec.n_links <= RELEASE_LONG_ROBOT else 7)
+
+
+#: The release's core fields (``ours`` starts from them).
+RELEASE_FIELDS = {"covariance": 0.1, "w_goal_terminal": 22.0, "w_coll_terminal": 1.1, "w_perturbation": 0.1}
+
+
+def release(spec: RobotSpec, observation: Observation) -> ControllerConfig:
+    """The authors' release."""
+    return ControllerConfig(mppi=_core(observation, *_release_sizes(spec, observation), **RELEASE_FIELDS),
+                            sampling=Sampling(clip=0.5))
+
+
+def ours(spec: RobotSpec, observation: Observation) -> ControllerConfig:
+    """The release with our stages, chosen by what is observed (module docstring)."""
+    sizes = _release_sizes(spec, observation)
+    if observation.ball_radius > 0:
+        return ControllerConfig(
+            mppi=_core(observation, *sizes, **RELEASE_FIELDS, goal_reach=True),
+            sampling=Sampling("release", BALLS_SMOOTHING, 0.5, unclipped=True),
+            temperature=EffectiveSampleSize(0.02),
+            safety=SafetyFilter(sweep_first=True, follow_executed=True))
+    fields = {**RELEASE_FIELDS, "w_coll": SURFACE_W_COLL, "w_coll_terminal": SURFACE_W_COLL}
+    return ControllerConfig(
+        mppi=_core(observation, *sizes, **fields),
+        sampling=Sampling("release", clip=0.5, unclipped=True),
+        temperature=EffectiveSampleSize(0.02, StallEscape(STALL_STEPS, STALL_ESS)),
+        model=ConvexModel(CONVEX_LINK), safety=SafetyFilter(), recovery=RouteRecovery(after=STALL_STEPS))
+
+
+#: The presets by ``--controller`` name, with one line each for ``--help``.
+PRESETS = {"paper": paper, "release": release, "ours": ours}
+SUMMARIES = {
+    "paper": "paper Sec. VI-A: 800 rollouts, H = 20, covariance 0.05 I, lambda 0.02",
+    "release": "the authors' release: covariance 0.1 I clipped to 0.5, terminal and perturbation costs",
+    "ours": "release + our stages, chosen by what the robot observes (the default)",
+}
+DEFAULT = "ours"
+
+
+def preset(name: str, spec: RobotSpec, observation: Observation, *, samples: int | None = None,
+           horizon: int | None = None) -> ControllerConfig:
+    """The preset ``name`` for the robot and observation, its rollouts and horizon overridden where given.
+
+    Raises:
+      ValueError naming the bad value.
+    """
+    if name not in PRESETS:
+        raise ValueError(f"unknown controller {name!r}; choose one of {', '.join(PRESETS)}")
+    config = PRESETS[name](spec, observation)
+    sizes = {"samples": samples, "horizon": horizon}
+    core = dataclasses.replace(config.mppi, **{k: v for k, v in sizes.items() if v is not None})
+    return dataclasses.replace(config, mppi=core)
