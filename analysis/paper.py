@@ -1,6 +1,6 @@
 """The paper's published figures (Tables I-IV; RTX 4090), one source for the tables and figures.
 
-From the paper (../shared/paper/n-cedf-paper.tex) as transcribed in the project's reference notes.
+From the paper, as transcribed in docs/paper-setups.md and the paper's tables.
 """
 
 from __future__ import annotations

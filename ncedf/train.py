@@ -272,25 +272,30 @@ def parse_args(argv=None) -> argparse.Namespace:
     return p.parse_args(argv)
 
 
+def _configs(args):
+    """The model, training, dataset and validation configs of the parsed arguments (ValueError names a bad one)."""
+    model_cfg = ModelConfig(args.layers, args.width, args.encoding, args.output)
+    cfg = TrainConfig(
+        epochs=args.epochs,
+        batch_size=args.batch_size,
+        learning_rate=args.lr,
+        schedule=args.schedule,
+        lambda_eikonal=args.lambda_eikonal,
+        lambda_over=0.0 if args.no_overestimation else args.lambda_over,
+        near_weight=args.near_weight,
+        seed=args.seed,
+    )
+    data_cfg = DatasetConfig(
+        n_configs=args.configs, grid=args.grid, n_surface=args.surface, n_near=args.near,
+        labels=args.labels, seed=args.seed,
+    )
+    return model_cfg, cfg, data_cfg, ValidationConfig(n_configs=args.val_configs, n_points=args.val_points)
+
+
 def main(argv=None) -> int:
     args = parse_args(argv)
     try:
-        model_cfg = ModelConfig(args.layers, args.width, args.encoding, args.output)
-        cfg = TrainConfig(
-            epochs=args.epochs,
-            batch_size=args.batch_size,
-            learning_rate=args.lr,
-            schedule=args.schedule,
-            lambda_eikonal=args.lambda_eikonal,
-            lambda_over=0.0 if args.no_overestimation else args.lambda_over,
-            near_weight=args.near_weight,
-            seed=args.seed,
-        )
-        data_cfg = DatasetConfig(
-            n_configs=args.configs, grid=args.grid, n_surface=args.surface, n_near=args.near,
-            labels=args.labels, seed=args.seed,
-        )
-        val_cfg = ValidationConfig(n_configs=args.val_configs, n_points=args.val_points)
+        model_cfg, cfg, data_cfg, val_cfg = _configs(args)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

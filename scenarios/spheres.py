@@ -1,6 +1,6 @@
 """Dynamic spheres (paper Sec. VI-C, Table III): 8 spheres moving back and forth around the robot.
 
-Environment ``env_seed`` (paper-setups.md): 8 spheres of radius 0.7 m with
+Environment ``env_seed`` (``docs/paper-setups.md``): 8 spheres of radius 0.7 m with
 centres uniform in x, y in [-4, 4], z in [-1, 6], pairwise at least 1.5 m
 apart; velocity components uniform in [0, 1) m/s, the sign flipping every 2 s.
 The controller observes the sphere centres only (its safety margin grows by the

@@ -1,4 +1,4 @@
-"""Scenario runners: a CLI end to end, one-line errors, presets, and the scenes against paper-setups.md."""
+"""Scenario runners: a CLI end to end, one-line errors, presets, and the scenes against docs/paper-setups.md."""
 
 import dataclasses
 import os
