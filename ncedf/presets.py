@@ -31,6 +31,8 @@ from __future__ import annotations
 
 import dataclasses
 
+import numpy as np
+
 from ncedf.controller import ControllerConfig
 from ncedf.mppi import MPPIConfig
 from ncedf.obstacle_model import ConvexModel
@@ -73,7 +75,7 @@ class Observation:
     ball_radius: float = 0.0
 
     def __post_init__(self):
-        if isinstance(self.n_points, bool) or not isinstance(self.n_points, int) or self.n_points < 0:
+        if isinstance(self.n_points, bool) or not isinstance(self.n_points, (int, np.integer)) or self.n_points < 0:
             raise ValueError(f"Observation.n_points must be an integer >= 0, got {self.n_points!r}")
         if not self.ball_radius >= 0:
             raise ValueError(f"Observation.ball_radius must be >= 0, got {self.ball_radius!r}")
