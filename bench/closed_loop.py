@@ -48,7 +48,7 @@ import numpy as np
 from tqdm import tqdm
 
 from ncedf.controller import Controller
-from ncedf.presets import PRESETS
+from ncedf.presets import PRESETS, Observation
 from ncedf.temperature import Fixed
 from recorder.cli import EXIT_STATUS, Stopped, exit_with, stop_on_signals
 from scenarios.episode import Episode, EpisodeSettings, option_positive
@@ -63,7 +63,7 @@ VARIANTS: dict[str, tuple[str, dict]] = {
     "ours": ("ours", {}),
     "ours-sampling": ("ours", {"sampling.kind": "project"}),
     "ours-ess": ("ours", {"temperature": Fixed()}),
-    "ours-check": ("ours", {"safety": None}),
+    "ours-check": ("ours", {"safety": None}),  # the whole filter: among the balls its sweep and warm start too
     "ours+smooth": ("ours", {"sampling.smoothing": 0.6}),
     "ours-smooth": ("ours", {"sampling.smoothing": 0.0}),
     "ours-sweep": ("ours", {"safety.sweep_first": False}),
@@ -108,15 +108,18 @@ def resolve(variant: str) -> tuple[str, dict]:
 
 
 def changed(config, changes: dict):
-    """``config`` (a ControllerConfig) with the changes applied; ValueError names a bad one."""
+    """``config`` (a ControllerConfig) with the changes applied, the stages replaced whole first (at
+    once: ``model`` and ``recovery`` go together); ValueError names a bad one."""
+    whole = {path: value for path, value in changes.items() if "." not in path}
+    unknown = [stage for stage in whole if not hasattr(config, stage)]
+    if unknown:
+        raise ValueError(f"no stage {unknown[0]!r}")
+    config = dataclasses.replace(config, **whole)
     for path, value in changes.items():
-        stage, _, field = path.partition(".")
-        if not hasattr(config, stage):
-            raise ValueError(f"no stage {stage!r}")
-        if not field:
-            config = dataclasses.replace(config, **{stage: value})
+        if path in whole:
             continue
-        part = getattr(config, stage)
+        stage, _, field = path.partition(".")
+        part = getattr(config, stage, None)
         if part is None or field not in {f.name for f in dataclasses.fields(part)}:
             raise ValueError(f"no field {path!r} here (the stage is {part!r})")
         config = dataclasses.replace(config, **{stage: dataclasses.replace(part, **{field: value})})
@@ -151,14 +154,16 @@ def episodes(args) -> list[tuple[str, EpisodeSettings]]:
 def make_episode(variant: str, settings: EpisodeSettings) -> Episode:
     """The prepared episode of ``variant`` (``paper`` at ours's rollouts and horizon)."""
     preset, changes = resolve(variant)
-    if preset == "paper":
-        ours = Episode(dataclasses.replace(settings, controller="ours")).scene.config.mppi
-        settings = dataclasses.replace(settings, samples=ours.samples, horizon=ours.horizon)
     episode = Episode(dataclasses.replace(settings, controller=preset))
-    if changes:
-        config = changed(episode.scene.config, changes)
-        episode.scene = dataclasses.replace(episode.scene, config=config)
-        episode.mppi = Controller(episode.scene.spec, episode.shape, config)
+    scene = episode.scene
+    config = changed(scene.config, changes)
+    if preset == "paper":
+        ours = PRESETS["ours"](scene.spec, Observation(scene.observer.n_points, scene.world.margin_extra)).mppi
+        config = dataclasses.replace(config, mppi=dataclasses.replace(config.mppi, samples=ours.samples,
+                                                                      horizon=ours.horizon))
+    if config != scene.config:
+        episode.scene = dataclasses.replace(scene, config=config)
+        episode.mppi = Controller(scene.spec, episode.shape, config)
     return episode
 
 

@@ -7,7 +7,7 @@ Scene: the paper's cluttered environment as ``scenarios.cluttered`` defines it
 (Sec. VI-D; three boxes, points on their faces, two spheres of 30 surface points)
 at t = 0, observed with about ``--points`` points, and its goal. The robot runs
 closed loop from the straight state with the broad-phase controller; the brute-force
-controller (``broad_phase=False``) is then run on the first ``--ref-steps`` of the
+controller (``broad_phase=None``) is then run on the first ``--ref-steps`` of the
 same inputs (state, plan, key), so both see identical samples. Reported per (links, representation):
 
   median / p95 step time of the broad phase over ``--steps`` steps after

@@ -197,7 +197,7 @@ class Controller:
         here = np.asarray(arc)
         plan_route(self.spec, polytopes, here, tips(here[None], self.spec)[0], state.mppi.key,
                    self.config.recovery.route)
-        jax.block_until_ready(self.check_moves(arc, points, mask, polytopes)(jnp.zeros((2,) + arc.shape)))
+        jax.block_until_ready(self.check_moves(arc, points, mask, polytopes)(jnp.zeros((2,) + arc.shape, jnp.float32)))
 
 
 def config_to_dict(config: ControllerConfig) -> dict:
@@ -214,22 +214,36 @@ def config_to_dict(config: ControllerConfig) -> dict:
     return out
 
 
+def _build(cls, fields: dict, where: str):
+    """``cls(**fields)``, a ValueError naming ``where`` and the unknown fields if there are any."""
+    unknown = set(fields) - {f.name for f in dataclasses.fields(cls)}
+    if unknown:
+        raise ValueError(f"unknown {where} settings {sorted(unknown)}")
+    return cls(**fields)
+
+
+def _stage(name: str, data):
+    """The stage ``name`` from its metadata dict (None stays None)."""
+    if data is None:
+        return None
+    kinds = {kind.__name__: kind for kind in STAGES[name][0]}
+    data = dict(data)
+    kind = kinds[next(iter(kinds))] if len(kinds) == 1 else kinds.get(data.pop("type", None))
+    if kind is None:
+        raise ValueError(f"unknown {name} type; the metadata must name one of {', '.join(kinds)}")
+    if isinstance(data.get("escape"), dict):
+        data["escape"] = _build(StallEscape, data["escape"], "escape")
+    return _build(kind, data, name)
+
+
 def config_from_dict(data: dict) -> ControllerConfig:
-    """The inverse of :func:`config_to_dict`; the flat settings of older recordings are read too
-    (``ncedf.legacy``). Raises ValueError naming an unknown field."""
+    """The inverse of :func:`config_to_dict` (a missing stage takes the default); the flat settings
+    of older recordings are read too (``ncedf.legacy``). Raises ValueError naming a bad field."""
     if not isinstance(data.get("temperature"), dict):
         from ncedf.legacy import legacy_config
 
         return legacy_config(data)
-    data = dict(data)
-    stages = {name: data.pop(name, None) for name in STAGES if name != "mppi"}
-    temperature = dict(stages["temperature"])
-    kind = {"Fixed": Fixed, "EffectiveSampleSize": EffectiveSampleSize}[temperature.pop("type")]
-    if kind is EffectiveSampleSize and temperature.get("escape") is not None:
-        temperature["escape"] = StallEscape(**temperature["escape"])
-    built = {"temperature": kind(**temperature)}
-    for name, cls in (("sampling", Sampling), ("broad_phase", BroadPhase), ("model", ConvexModel),
-                      ("safety", SafetyFilter), ("recovery", RouteRecovery)):
-        built[name] = None if stages[name] is None else cls(**stages[name])
-    return ControllerConfig(mppi=MPPIConfig(**data), **built)
+    core = {name: value for name, value in data.items() if name not in STAGES}
+    stages = {name: _stage(name, data[name]) for name in STAGES if name != "mppi" and name in data}
+    return ControllerConfig(mppi=_build(MPPIConfig, core, "core"), **stages)
 

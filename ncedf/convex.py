@@ -110,6 +110,7 @@ class Polytopes(NamedTuple):
     valid: (C, K) bool.  present: (C,) bool; an absent cluster is no obstacle.
     velocity: (C, 3) m/s, the polytope's translation (the mean velocity of its points).
     centre: (C, 3) m, radius: (C,) m, ball: (C,) bool: the cluster lies on that sphere and is its ball.
+    left_out: (scalar int) the static clusters left out as not convex: obstacles the model misses.
     """
 
     lower: jnp.ndarray
@@ -122,6 +123,7 @@ class Polytopes(NamedTuple):
     centre: jnp.ndarray
     radius: jnp.ndarray
     ball: jnp.ndarray
+    left_out: jnp.ndarray
 
 
 def static_rows(points: np.ndarray, mask: np.ndarray, previous: np.ndarray, previous_mask: np.ndarray) -> np.ndarray:
@@ -169,11 +171,19 @@ def clusters(points: np.ndarray, link: float, groups: np.ndarray | None = None, 
     return labels
 
 
+def _hull(points: np.ndarray):
+    """The convex hull of the points (P, 3), or None where they span no volume (fewer than 4, or
+    all on a plane or line)."""
+    try:
+        return ConvexHull(np.asarray(points, np.float64))
+    except (QhullError, ValueError):
+        return None
+
+
 def _hull_planes(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Merged hull planes (normals (Q, 3), offsets (Q,), areas (Q,)), largest first; none if degenerate."""
-    try:
-        hull = ConvexHull(points)
-    except (QhullError, ValueError):  # fewer than 4 points, or all on a plane or line
+    hull = _hull(points)
+    if hull is None:
         return np.zeros((0, 3)), np.zeros(0), np.zeros(0)
     normals, offsets = hull.equations[:, :3], -hull.equations[:, 3]
     tri = points[hull.simplices]
@@ -231,9 +241,8 @@ def hull_depth(points: np.ndarray) -> float:
     """How deep the deepest of the points (P, 3) lies inside their convex hull, m: the least
     distance to a hull face's plane (0 where every point is on the hull's boundary, and where
     the points span no volume)."""
-    try:
-        hull = ConvexHull(np.asarray(points, np.float64))
-    except (QhullError, ValueError):  # fewer than 4 points, or all on a plane or line
+    hull = _hull(points)
+    if hull is None:
         return 0.0
     depth = -(points @ hull.equations[:, :3].T + hull.equations[:, 3])  # (P, F) >= 0 up to rounding
     return float(max(np.max(np.min(depth, axis=1)), 0.0))
@@ -246,7 +255,7 @@ def _fit_group(data: bytes, link: float, bounds: bool) -> tuple[tuple, ...]:
     :func:`fit_polytope`'s four arrays and :func:`fit_sphere`'s result; a sphere's polytope
     without hull planes, as its ball replaces it). Cached: a static group repeats from step
     to step. With ``bounds`` (the static group) a cluster that is not convex (:func:`hull_depth`) is
-    left out."""
+    left out: its fit is None."""
     points = np.frombuffer(data, np.float64).reshape(-1, 3)
     labels = clusters(points, link, bounds=bounds)
     fits = []
@@ -254,6 +263,7 @@ def _fit_group(data: bytes, link: float, bounds: bool) -> tuple[tuple, ...]:
         members = np.flatnonzero(labels == label)
         sphere = fit_sphere(points[members])
         if bounds and sphere is None and hull_depth(points[members]) > CONVEX_TOLERANCE:
+            fits.append((members, None))
             continue
         fits.append((members, *fit_polytope(points[members], planes=sphere is None), sphere))
     return tuple(fits)
@@ -284,11 +294,13 @@ def fit_polytopes(points: np.ndarray, link: float, groups: np.ndarray | None = N
     ball = np.zeros(MAX_CLUSTERS, bool)
     points = np.ascontiguousarray(points, np.float64)
     groups = np.zeros(len(points), int) if groups is None else np.asarray(groups)
-    found = []  # (members' indices into points, fit)
+    found, left_out = [], 0  # (members' indices into points, fit); clusters left out
     for group in np.unique(groups):
         index = np.flatnonzero(groups == group)
         fits = _fit_group(points[index].tobytes(), float(link), bounds is None or group in bounds)
-        found += [(index[members], fit) for members, *fit in fits]
+        kept = [fit for fit in fits if fit[1] is not None]
+        left_out += len(fits) - len(kept)
+        found += [(index[members], fit) for members, *fit in kept]
     found.sort(key=lambda cluster: -len(cluster[0]))  # stable: the largest first
     for c, (members, (box_lower, box_upper, n, b, sphere)) in enumerate(found[:MAX_CLUSTERS]):
         lower[c], upper[c] = box_lower, box_upper
@@ -299,7 +311,8 @@ def fit_polytopes(points: np.ndarray, link: float, groups: np.ndarray | None = N
             ball[c] = True
         if velocity is not None:
             moving[c] = velocity[members].mean(axis=0)
-    return Polytopes(lower, upper, normals, offsets, valid, present, moving, centre, radius, ball)
+    return Polytopes(lower, upper, normals, offsets, valid, present, moving, centre, radius, ball,
+                     np.int32(left_out))
 
 
 def polytope_distance(x: jnp.ndarray, polytopes: Polytopes, t=0.0, dense: bool | None = None) -> jnp.ndarray:

@@ -37,8 +37,6 @@ DEFAULTS = {
 #: Removed experiments: (field, the value that meant off).
 REMOVED = (("predict_motion", False), ("fill_edge", 0.0), ("hold_time", 0.0), ("check_margin", 0.0),
            ("shift_fill", "last"), ("limit_action", True))
-#: Routes an episode planned at most (the flat settings had no field for it).
-ROUTE_TRIES = 3
 #: The core's fields under their flat names.
 CORE = {name: name for name in ("samples", "horizon", "covariance", "alpha_u", "w_goal", "w_coll", "w_state",
                                 "w_goal_terminal", "w_coll_terminal", "w_perturbation", "goal_reach",
@@ -57,15 +55,17 @@ def legacy_config(flat: dict):
     for name, off in REMOVED:
         if f[name] != off:
             raise ValueError(f"this recording's controller used {name}={f[name]!r}, an experiment that was removed")
+    if (f["sweep_first"] or f["follow_executed"]) and not f["safety_check"]:
+        raise ValueError("this recording's controller used sweep_first or follow_executed without safety_check, "
+                         "which the safety filter stage holds")
     route = dict(f["route"])
-    if "goal_step" in route:  # the gradient planner's goal settings (module docstring)
-        del route["goal_step"], route["goal_iterations"]
+    if route.pop("goal_step", None) is not None:  # the gradient planner's goal settings (module docstring)
+        route.pop("goal_iterations", None)
     escape = StallEscape(f["stall_steps"], f["stall_ess"]) if f["stall_steps"] else None
     temperature = Fixed(f["temperature"]) if f["target_ess"] is None else EffectiveSampleSize(f["target_ess"], escape)
     broad = (BroadPhase(f["k1"], f["k2"], f["capsule_segments"], f["selection"], f["groups"], f["group_size"])
              if f["broad_phase"] else None)
-    recovery = (RouteRecovery(f["route_after"], ROUTE_TRIES, RouteConfig(**route)) if f["route_after"]
-                else None)
+    recovery = RouteRecovery(f["route_after"], route=RouteConfig(**route)) if f["route_after"] else None
     return ControllerConfig(
         mppi=MPPIConfig(**{new: f[old] for new, old in CORE.items() if old in f}),
         sampling=Sampling(f["sampling"], f["noise_smoothing"], f["noise_clip"], f["update_unclipped"]),

@@ -45,7 +45,6 @@ import jax.numpy as jnp
 
 from ncedf.broad_phase import rollout_min_distances
 from ncedf.convex import robot_clearance
-from ncedf.precision import MATMUL
 from ncedf.robot import RobotSpec, forward_kinematics
 from ncedf.safety import filtered_action, limit_to_state_bounds, step_clearance
 from ncedf.sampling import bounded_controls, sample_noise, update_plan

@@ -7,7 +7,7 @@ closes each convex cluster of the cloud (``ncedf.convex``): the cloud's rows tha
 did not move since the previous observation and those that did are clustered
 apart (static clusters whose bounding boxes lie within ``link`` merge, so a
 sparsely sampled box stays whole), a cluster on a sphere is its ball, a convex
-one its polytope, and a non-convex one is left to the cloud. Each rollout
+one its polytope, and a static one that is not convex is left to the cloud. Each rollout
 state's distance is then the smaller of the representation's and a lower bound
 of the body's clearance to the model, every polytope moved at the mean velocity
 of its points to the state's time.

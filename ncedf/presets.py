@@ -31,8 +31,6 @@ from __future__ import annotations
 
 import dataclasses
 
-import numpy as np
-
 from ncedf.controller import ControllerConfig
 from ncedf.mppi import MPPIConfig
 from ncedf.obstacle_model import ConvexModel
@@ -40,7 +38,8 @@ from ncedf.recovery import RouteRecovery
 from ncedf.robot import RobotSpec
 from ncedf.safety import SafetyFilter
 from ncedf.sampling import Sampling
-from ncedf.temperature import EffectiveSampleSize, Fixed, StallEscape
+from ncedf.temperature import EffectiveSampleSize, StallEscape
+from ncedf.validate import check_fields
 
 #: Capacity granularity of the obstacle cloud (MPPIConfig.max_points), points: clouds of similar
 #: sizes share one compiled controller.
@@ -75,10 +74,7 @@ class Observation:
     ball_radius: float = 0.0
 
     def __post_init__(self):
-        if isinstance(self.n_points, bool) or not isinstance(self.n_points, (int, np.integer)) or self.n_points < 0:
-            raise ValueError(f"Observation.n_points must be an integer >= 0, got {self.n_points!r}")
-        if not self.ball_radius >= 0:
-            raise ValueError(f"Observation.ball_radius must be >= 0, got {self.ball_radius!r}")
+        check_fields(self, counts=("n_points",), non_negative=("ball_radius",))
 
 
 def point_capacity(n_points: int) -> int:

@@ -7,7 +7,9 @@ wrapper runs around an environment's step: when the core's stall count reaches
 ``after`` + 1, and again every ``after`` steps while it grows (at most
 ``tries`` plans per episode), it plans a route from the current state round
 the obstacle model's static polytopes (``ncedf.route``; the moving ones are
-left out). Where the roadmap holds none, nothing changes. Else it executes the
+left out), unless the model left a static cluster out as not convex (the
+roadmap would not see that obstacle). Where the roadmap holds none, nothing
+changes. Else it executes the
 route: each step moves to the farthest route state within one step's bound
 (or towards the next, at the bound) if that move passes the safety check,
 which sees the moving obstacles too; else it holds if holding passes, else it
@@ -119,10 +121,10 @@ def supervise(recovery: RouteRecovery, spec: RobotSpec, check_moves, margin: flo
       (action (M, 3) m/s, RouteState, MPPIState).
     """
     if route.at >= len(route.states) - 1:
-        if not plan_due(recovery, route, int(mppi.stalled)):
-            return action, route, mppi
+        if not plan_due(recovery, route, int(mppi.stalled)) or int(polytopes.left_out):
+            return action, route, mppi  # no plan where the model misses an obstacle: the roadmap would not see it
         route, mppi = start_route(recovery, spec, route, mppi, arc, goal, polytopes)
-        if len(route.states) == 0 or route.at >= len(route.states) - 1:
+        if route.at >= len(route.states) - 1:
             return action, route, mppi
     u, reached = route_move(route, np.asarray(arc), control_bound, dt)
     moves = jnp.asarray(np.stack([u, np.zeros_like(u)]), jnp.float32)  # along the route, or hold

@@ -41,10 +41,7 @@ them passes its safety check first, which sees the moving obstacles.
 Host-side (numpy and scipy around jitted JAX), as the polytope fit is: it runs
 once per stall, not per step. The states are scored ``PASS`` at a time (one
 compiled program per robot and settings, which ``Controller.warm_up`` compiles before
-an episode). From random states near a box of the paper's boxes a plan takes 0.36 /
-0.54 / 0.83 s with 4 / 5 / 7 links on a 2-core CPU (median; ``bench/route_plan.py``),
-up to 3.4 s where the lazy search falls back to every edge (before the damped least
-squares for the goal states: 1.11 / 1.36 / 1.69 s).
+an episode). Its time per plan: ``bench/route_plan.py``.
 """
 
 from __future__ import annotations

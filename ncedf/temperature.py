@@ -8,8 +8,8 @@ smallest lambda of ``TEMPERATURE_GRID`` whose weights have an effective sample
 size ``1 / sum w^2`` of at least ``target * N`` (and ``MIN_ESS``), so the update
 averages several samples.
 
-A robot that makes no progress for a while (the controller's stall count,
-``ncedf.mppi.Progress``) is usually held by a balance of goal and collision
+A robot that makes no progress for a while (the core's stall count,
+``ncedf.mppi.MPPIState.stalled``) is usually held by a balance of goal and collision
 costs that a smooth average keeps; :class:`StallEscape` then asks for a
 smaller effective sample size (sharper weights, larger steps) until the goal
 distance falls again. The phase of fast progress, where the robot passes

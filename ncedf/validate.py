@@ -21,12 +21,12 @@ def _fail(config, name: str, rule: str):
 
 
 def check_fields(config, *, integers=(), counts=(), positive=(), non_negative=(), fractions=(), unit=None,
-                 positive_or_none=(), fraction_or_none=(), flags=(), choices=None) -> None:
+                 positive_or_none=(), flags=(), choices=None) -> None:
     """Raise ValueError naming the first bad field of ``config``.
 
     integers: ints >= 1.  counts: ints >= 0.  positive: numbers > 0.  non_negative: numbers >= 0.
     fractions: numbers in (0, 1].  unit: {name: (lo, hi)} numbers in [lo, hi).
-    positive_or_none, fraction_or_none: as positive / fractions, or None.  flags: bools.
+    positive_or_none: as positive, or None.  flags: bools.
     choices: {name: allowed values}.
     """
     for name in integers + counts:
@@ -41,9 +41,9 @@ def check_fields(config, *, integers=(), counts=(), positive=(), non_negative=()
     for name in non_negative:
         if _number(config, name) < 0:
             _fail(config, name, ">= 0")
-    for name in fractions + tuple(n for n in fraction_or_none if getattr(config, n) is not None):
+    for name in fractions:
         if not 0 < _number(config, name) <= 1:
-            _fail(config, name, "in (0, 1]" + (" or None" if name in fraction_or_none else ""))
+            _fail(config, name, "in (0, 1]")
     for name, (lo, hi) in (unit or {}).items():
         if not lo <= _number(config, name) < hi:
             _fail(config, name, f"in [{lo:g}, {hi:g})")

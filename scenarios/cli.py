@@ -20,11 +20,12 @@ import sys
 from pathlib import Path
 from typing import Callable
 
+from ncedf.presets import DEFAULT, PRESETS, SUMMARIES
 from recorder import RecorderError
 from recorder.cli import EXIT_STATUS, OneLineParser, Stopped, stop_on_signals
 from recorder.recorder import FORMATS, check_writable, output_paths
 from scenarios.episode import Episode, EpisodeResult, EpisodeSettings
-from ncedf.presets import DEFAULT, PRESETS, SUMMARIES
+
 
 def make_parser(scenario: str, description: str, *, links: int = 4, max_steps: int) -> OneLineParser:
     """A parser with the shared options (scenario options are added by the runner).

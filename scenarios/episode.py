@@ -76,12 +76,12 @@ from tqdm import tqdm
 from ncedf.geometry import robot_link_signed_distances, robot_mesh_arrays, robot_surface_points
 from ncedf.model import load_model
 from ncedf.controller import Controller, ControllerConfig, config_to_dict
+from ncedf.presets import DEFAULT, PRESETS, Observation, preset
 from ncedf.robot import RobotSpec, arc_lengths_to_config, forward_kinematics, project_state
 from ncedf.shapes import make_shape
 from recorder import Recorder, RecordingInterrupted
 from recorder.recorder import FORMATS, check_writable, output_paths
 from scenarios import world as world_mod
-from ncedf.presets import DEFAULT, PRESETS, Observation, preset
 
 #: Runnable scenarios: the module ``scenarios.<name>`` defines ``build(settings) -> Scene``.
 SCENARIOS = ("cluttered", "spheres", "charging", "custom")

@@ -44,8 +44,8 @@ import optax
 
 from ncedf.geometry import robot_signed_distance
 from ncedf.mppi import MPPIConfig
-from ncedf.sampling import release_controls
 from ncedf.robot import RobotSpec, forward_kinematics, project_state
+from ncedf.sampling import release_controls
 from scenarios.world import World, judge_step
 
 

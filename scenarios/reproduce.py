@@ -281,26 +281,29 @@ def run_networks(table: str, out: Path, budget: Budget, seed: int, command: str)
 # ---------------------------------------------------------------- Tables III and IV: sweeps
 def sweep_episodes(table: str, budget: Budget):
     """Every episode of Table III or IV."""
-    from ncedf.presets import PRESETS as CONTROLLERS
+    from ncedf.presets import PRESETS
     from scenarios.sweep import sweep_settings
+
+    controllers = tuple(PRESETS)
 
     common = {k: v for k, v in (("samples", budget.samples), ("horizon", budget.horizon),
                                 ("max_steps", budget.max_steps)) if v is not None}
     if table == "table3":
         small = [s for s in TABLE3_SHAPES if s != "pointcloud:5000"]
-        return (sweep_settings(["spheres"], [4], small, CONTROLLERS, budget.envs, 1, **common)
-                + sweep_settings(["spheres"], [4], ["pointcloud:5000"], CONTROLLERS, budget.envs_5000, 1, **common))
-    return sweep_settings(["cluttered"], list(TABLE4_LINKS), ["ncedf"], CONTROLLERS, 1, budget.seeds, **common)
+        return (sweep_settings(["spheres"], [4], small, controllers, budget.envs, 1, **common)
+                + sweep_settings(["spheres"], [4], ["pointcloud:5000"], controllers, budget.envs_5000, 1, **common))
+    return sweep_settings(["cluttered"], list(TABLE4_LINKS), ["ncedf"], controllers, 1, budget.seeds, **common)
 
 
 def run_episodes(table: str, out: Path, budget: Budget, seed: int, command: str) -> int:
     """Run the sweep of ``table`` (resumes); the sweep's exit status."""
-    from ncedf.presets import PRESETS as CONTROLLERS
+    from ncedf.presets import PRESETS
     from scenarios.sweep import run_sweep, summary_table
 
+    controllers = tuple(PRESETS)
     where = folder(out, table, budget)
     episodes = sweep_episodes(table, budget)
-    write_manifest(where, table, budget, command, {"controllers": list(CONTROLLERS), "episodes": len(episodes)})
+    write_manifest(where, table, budget, command, {"controllers": list(controllers), "episodes": len(episodes)})
     report = run_sweep(episodes, where, workers=budget.workers)
     if report.signum is not None:
         return report.exit_status

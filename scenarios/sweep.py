@@ -596,9 +596,11 @@ def _option(text: str) -> tuple[str, str]:
 
 
 def parse_args(argv=None) -> argparse.Namespace:
+    from ncedf.presets import PRESETS
     from ncedf.shapes import REPRESENTATIONS
     from scenarios.episode import GOALS, SCENARIOS, EpisodeSettings
-    from ncedf.presets import PRESETS as CONTROLLERS
+
+    controllers = tuple(PRESETS)
 
     p = OneLineParser(prog="python -m scenarios.sweep", description=__doc__.split("\n\n")[0],
                                 epilog="Exit status: 0 all episodes complete, 1 some failed, 2 bad arguments, "
@@ -611,7 +613,7 @@ def parse_args(argv=None) -> argparse.Namespace:
                       help=f"robot-shape representations: {', '.join(REPRESENTATIONS)} "
                            f"(default {EpisodeSettings.shape})")
     grid.add_argument("--controllers", type=_csv(str, "controller names"),
-                      help=f"MPPI presets: {', '.join(CONTROLLERS)} (default {EpisodeSettings.controller})")
+                      help=f"MPPI presets: {', '.join(controllers)} (default {EpisodeSettings.controller})")
     grid.add_argument("--envs", type=int, default=1, help="environment seeds 0..N-1 (default 1)")
     grid.add_argument("--seeds", type=int, default=1, help="controller seeds 0..N-1 (default 1)")
     ep = p.add_argument_group("every episode")

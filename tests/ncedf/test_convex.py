@@ -18,9 +18,10 @@ from ncedf.geometry import robot_signed_distance
 from ncedf.mppi import MPPIConfig, init_state, mppi_step
 from ncedf.obstacle_model import ConvexModel
 from ncedf.recovery import RouteRecovery
-from ncedf.safety import SafetyFilter
 from ncedf.robot import RobotSpec, forward_kinematics, sample_arc_lengths
+from ncedf.safety import SafetyFilter
 from ncedf.shapes import make_shape, sphere_cover_radius
+from solids import ported_wall, solid_wall
 
 
 def _box_surface(rng, centre, size, density):
@@ -359,29 +360,8 @@ def test_a_moving_polytope_is_scored_where_it_will_be(dense):
                                _box_sdf(x, (0.0, 0.0, 0.0), (1.0, 1.0, 1.0)), atol=1e-5)
 
 
-def _solid_surface(solid, spacing=(0.125, 0.25, 0.25)) -> np.ndarray:
-    """Grid points of the solid (a predicate on (P, 3) points) with a grid neighbour outside it:
-    samples of its surface, the inner faces of its holes included."""
-    axes = [np.arange(-3.0, 5.0 + 1e-9, h) for h in spacing]
-    grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-    inside = solid(grid)
-    outer = np.zeros(len(grid), bool)
-    for step in np.concatenate([np.diag(spacing), -np.diag(spacing)]):
-        outer |= ~solid(grid + step)
-    return grid[inside & outer]
-
-
-def _wall(points, port: bool) -> np.ndarray:
-    """A wall 0.5 m thick (x in [0, 0.5], y in [-2, 2], z in [0, 4]), with a 1 m square port at y = 0, z = 2."""
-    x, y, z = points.T
-    wall = (x >= -1e-9) & (x <= 0.5 + 1e-9) & (np.abs(y) <= 2 + 1e-9) & (z >= -1e-9) & (z <= 4 + 1e-9)
-    hole = (np.abs(y) < 0.5 - 1e-9) & (np.abs(z - 2.0) < 0.5 - 1e-9)
-    return wall & ~hole if port else wall
-
-
 def test_a_cluster_that_is_not_convex_is_left_to_the_cloud():
-    solid = _solid_surface(lambda p: _wall(p, port=False))
-    ported = _solid_surface(lambda p: _wall(p, port=True))
+    solid, ported = solid_wall(), ported_wall()
     # Closed form: the points halfway through the port's inner faces lie half the thickness deep.
     assert hull_depth(solid) < CONVEX_TOLERANCE
     assert hull_depth(ported) == pytest.approx(0.25, abs=1e-9)

@@ -8,11 +8,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from ncedf.broad_phase import (block_smallest, cloud_groups, rollout_min_distances_broad,
+from ncedf.broad_phase import (BroadPhase, block_smallest, cloud_groups, rollout_min_distances_broad,
                                 rollout_min_distances_brute)
-from ncedf.geometry import robot_signed_distance
-from ncedf.broad_phase import BroadPhase
 from ncedf.controller import Controller, ControllerConfig
+from ncedf.geometry import robot_signed_distance
 from ncedf.mppi import MPPIConfig, mppi_step
 from ncedf.safety import SafetyFilter, limit_to_state_bounds
 from ncedf.sampling import Sampling, project_controls

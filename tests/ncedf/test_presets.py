@@ -1,12 +1,13 @@
 """The presets as a user composes them with ``ncedf`` alone: functions of the robot and the observation,
 their metadata round trip, and one-line errors for what makes no sense."""
 
+import dataclasses
 import json
 
 import numpy as np
 import pytest
 
-from ncedf.controller import ControllerConfig, config_from_dict, config_to_dict
+from ncedf.controller import config_from_dict, config_to_dict
 from ncedf.presets import PRESETS, Observation, preset
 from ncedf.robot import RobotSpec
 
@@ -28,15 +29,35 @@ def test_the_core_holds_the_papers_names_at_the_top_of_the_metadata():
     assert meta["safety_margin"] == pytest.approx(0.05 + 0.7)
 
 
-def test_ours_closes_surface_clouds_and_races_among_balls():
+def test_only_the_capacity_follows_the_size_of_the_cloud():
     spec = RobotSpec(5)
-    surfaces, balls = preset("ours", spec, Observation(500)), preset("ours", spec, Observation(8, ball_radius=0.7))
-    assert surfaces.model is not None and surfaces.recovery is not None and balls.model is None
-    assert balls.safety.sweep_first and not surfaces.safety.sweep_first
-    # The observation alone decides: the capacity follows the cloud, nothing else changes with its size.
-    bigger = preset("ours", spec, Observation(5000))
-    assert bigger.mppi.max_points >= 5000
-    assert ControllerConfig(**{**bigger.__dict__, "mppi": surfaces.mppi}) == surfaces
+    small, big = preset("ours", spec, Observation(500)), preset("ours", spec, Observation(5000))
+    assert big.mppi.max_points >= 5000 > small.mppi.max_points
+    assert dataclasses.replace(big, mppi=small.mppi) == small
+
+
+def test_bad_metadata_is_named():
+    meta = config_to_dict(preset("ours", RobotSpec(4), Observation(10)))
+    with pytest.raises(ValueError, match="unknown core settings"):
+        config_from_dict({**meta, "wobble": 1})
+    with pytest.raises(ValueError, match="unknown safety settings"):
+        config_from_dict({**meta, "safety": {**meta["safety"], "margin": 0.1}})
+    with pytest.raises(ValueError, match="temperature type"):
+        config_from_dict({**meta, "temperature": {"target": 0.02}})
+    # A stage the metadata does not name takes its default.
+    assert config_from_dict({k: v for k, v in meta.items() if k != "broad_phase"}) == preset(
+        "ours", RobotSpec(4), Observation(10))
+
+
+@pytest.mark.parametrize("name", ["paper", "release"])
+def test_flat_settings_of_old_recordings_are_the_presets_of_today(name):
+    """The flat settings the release and paper presets wrote before the stages (their non-default fields)."""
+    flat = {"samples": 800, "horizon": 20, "max_points": 512}
+    if name == "release":
+        flat.update(covariance=0.1, noise_clip=0.5, w_goal_terminal=22.0, w_coll_terminal=1.1, w_perturbation=0.1)
+    assert config_from_dict(flat) == preset(name, RobotSpec(4), Observation(500))
+    with pytest.raises(ValueError, match="sweep_first"):
+        config_from_dict({**flat, "sweep_first": True})
 
 
 @pytest.mark.parametrize("bad, message", [

@@ -10,17 +10,18 @@ import pytest
 
 import ncedf.controller as controller_module
 import ncedf.route as route_module
-from ncedf.convex import fit_polytopes
 from ncedf.controller import Controller, ControllerConfig
+from ncedf.convex import fit_polytopes
 from ncedf.mppi import MPPIConfig
 from ncedf.obstacle_model import ConvexModel
 from ncedf.recovery import RouteRecovery, RouteState
-from ncedf.safety import SafetyFilter
 from ncedf.robot import RobotSpec, sample_arc_lengths, validate_state
+from ncedf.safety import SafetyFilter
 from ncedf.route import (RouteConfig, around, between, clearances, goal_states, lazy_shortest_path, plan_route,
                          roadmap_edges, shortest_path, tips)
 from ncedf.shapes import make_shape
 from scenarios.world import Box, World, make_observer, true_distances_batch
+from solids import ported_wall
 
 # A two-link robot standing straight up (tip at (0, 0, 4)) and a goal below a bar that blocks the
 # straight way in arc lengths to the goal's states.
@@ -161,7 +162,7 @@ def test_between_spaces_states_evenly_inside_each_segment():
 
 
 def _controller() -> Controller:
-    config = ControllerConfig(MPPIConfig(samples=16, horizon=3), model=ConvexModel(1.0), safety=SafetyFilter(),
+    config = ControllerConfig(MPPIConfig(samples=16, horizon=3, max_points=1024), model=ConvexModel(1.0), safety=SafetyFilter(),
                               recovery=RouteRecovery(after=5, route=ROUTE))
     return Controller(SPEC, make_shape("spheres", SPEC), config)
 
@@ -224,6 +225,27 @@ def test_without_a_route_the_stall_count_goes_on_and_the_next_plan_waits(cloud):
     assert after.route.routes == 1 and int(after.mppi.stalled) == 52  # the next plan at 51 + after
     _, after, _ = mppi.step(_stalled(after, 55), START, inside, cloud)
     assert after.route.routes == 2 and int(after.mppi.stalled) == 56
+
+
+def test_no_route_where_the_model_left_an_obstacle_out(cloud):
+    """A ported wall beside the bar is not convex, so the model leaves it out and a roadmap round the
+    model would not see it: no plan, and the stall count goes on."""
+    mppi = _controller()
+    wall = ported_wall(spacing=(0.125, 0.5, 0.5), offset=(-6.0, 0.0, 0.0))  # behind the robot, out of its way
+    both = np.concatenate([cloud, wall])
+    _, state, _ = mppi.step(mppi.init(jax.random.PRNGKey(0)), START, GOAL, both)  # the wall seen still once
+    _, after, _ = mppi.step(_stalled(state, 50), START, GOAL, both)
+    assert after.route.routes == 0 and int(after.mppi.stalled) == 51
+    _, after, _ = mppi.step(_stalled(mppi.init(jax.random.PRNGKey(0)), 50), START, GOAL, cloud)
+    assert after.route.routes == 1  # the control: the bar alone gets its route
+
+
+def test_a_pose_goal_plans_no_route(cloud):
+    mppi = _controller()
+    pose = np.eye(4)
+    pose[:3, 3] = GOAL
+    _, after, _ = mppi.step(_stalled(mppi.init(jax.random.PRNGKey(0)), 50), START, pose, cloud)
+    assert after.route.routes == 0
 
 
 def test_route_settings_are_validated():
