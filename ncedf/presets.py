@@ -9,19 +9,23 @@
   the obstacles are observed as balls.
 * :func:`ours` (the default): the release with its two-rate sampling (the third
   rate minus the other two), a temperature for an effective sample size of 2%
-  of the rollouts, the safety filter and the unclipped plan update, and then by
-  what the robot observes:
+  of the rollouts and the safety filter, and then by what the robot observes:
 
   - obstacles observed completely, as balls (centre and radius): nothing is
     hidden, so speed only shortens the time they have to reach the robot; it
-    races: the closest-approach goal cost, low-pass noise, each rollout's
-    first step scored over its sweep, and the warm start from the executed
-    controls;
-  - obstacles observed as points on their surfaces: the points leave holes
-    between them, so it closes the cloud's convex clusters (the convex model),
-    is repelled less by the closed surfaces (collision weights 0.4), and escapes
-    stalls: sharper weights after 30 steps without progress, and a route round
-    the static polytopes.
+    races: the unclipped plan update, the closest-approach goal cost, low-pass
+    noise, each rollout's first step scored over its sweep, and the warm start
+    from the executed controls;
+  - obstacles observed as points on surfaces whose still clusters are all
+    convex: the points leave holes between them, so it closes each cluster (the
+    convex model), and with the surfaces closed it races too (the unclipped
+    update), is repelled less (collision weights 0.4) and escapes stalls:
+    sharper weights after 30 steps without progress, and a route round the
+    static polytopes;
+  - surface points with a still cluster that is not convex (a wall with a port,
+    a ring): the model would close its concavity, and a fast, less repelled
+    robot slides into the surface between its points, so it stays as above
+    without those stages.
 
 Nothing here depends on a scenario: a world is described by :class:`Observation`.
 The evidence for each choice is in ``results/README.md``.
@@ -30,6 +34,8 @@ The evidence for each choice is in ``results/README.md``.
 from __future__ import annotations
 
 import dataclasses
+
+import numpy as np
 
 from ncedf.controller import ControllerConfig
 from ncedf.mppi import MPPIConfig
@@ -68,13 +74,27 @@ class Observation:
       n_points: size of the observed cloud (sets the capacity).
       ball_radius: > 0 where every point is the centre of a ball of this radius, m (the
         obstacles are observed completely); 0 where the points lie on obstacle surfaces.
+      convex: every cluster of points that stays still is convex (:func:`observe` tells).
     """
 
     n_points: int
     ball_radius: float = 0.0
+    convex: bool = True
 
     def __post_init__(self):
-        check_fields(self, counts=("n_points",), non_negative=("ball_radius",))
+        check_fields(self, counts=("n_points",), non_negative=("ball_radius",), flags=("convex",))
+
+
+def observe(first, second, dt: float = MPPIConfig.dt, ball_radius: float = 0.0) -> Observation:
+    """The :class:`Observation` of two successive clouds (P, 3) m, ``dt`` seconds apart, row ``i``
+    the same physical point in both: whether the convex model of ``ours`` (``CONVEX_LINK``) leaves
+    a still cluster out as not convex."""
+    first, second = np.asarray(first, np.float32).reshape(-1, 3), np.asarray(second, np.float32).reshape(-1, 3)
+    if first.shape != second.shape:
+        raise ValueError(f"the two clouds must have the same rows, got {first.shape} and {second.shape}")
+    mask = np.ones(len(first), bool)
+    model = ConvexModel(CONVEX_LINK).fit(second, mask, first, mask, dt)
+    return Observation(len(second), ball_radius=ball_radius, convex=not int(model.left_out))
 
 
 def point_capacity(n_points: int) -> int:
@@ -120,6 +140,10 @@ def ours(spec: RobotSpec, observation: Observation) -> ControllerConfig:
             sampling=Sampling("release", BALLS_SMOOTHING, 0.5, unclipped=True),
             temperature=EffectiveSampleSize(0.02),
             safety=SafetyFilter(sweep_first=True, follow_executed=True))
+    if not observation.convex:
+        return ControllerConfig(mppi=_core(observation, *sizes, **RELEASE_FIELDS),
+                                sampling=Sampling("release", clip=0.5), temperature=EffectiveSampleSize(0.02),
+                                safety=SafetyFilter())
     fields = {**RELEASE_FIELDS, "w_coll": SURFACE_W_COLL, "w_coll_terminal": SURFACE_W_COLL}
     return ControllerConfig(
         mppi=_core(observation, *sizes, **fields),

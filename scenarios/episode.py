@@ -76,7 +76,8 @@ from tqdm import tqdm
 from ncedf.geometry import robot_link_signed_distances, robot_mesh_arrays, robot_surface_points
 from ncedf.model import load_model
 from ncedf.controller import Controller, ControllerConfig, config_to_dict
-from ncedf.presets import DEFAULT, PRESETS, Observation, preset
+from ncedf.mppi import MPPIConfig
+from ncedf.presets import DEFAULT, PRESETS, observe, preset
 from ncedf.robot import RobotSpec, arc_lengths_to_config, forward_kinematics, project_state
 from ncedf.shapes import make_shape
 from recorder import Recorder, RecordingInterrupted
@@ -256,7 +257,8 @@ def make_scene(settings: EpisodeSettings, world, goal, tolerance: float, max_ste
         raise ValueError(f"goal tolerance must be > 0, got {tolerance}")
     observer = world_mod.make_observer(world, settings.env_seed)
     spec = RobotSpec(settings.links)
-    observation = Observation(observer.n_points, ball_radius=world.margin_extra)
+    dt = MPPIConfig.dt
+    observation = observe(observer.observe(0.0), observer.observe(dt), dt, ball_radius=world.margin_extra)
     config = preset(settings.controller, spec, observation, samples=settings.samples, horizon=settings.horizon)
     return Scene(world=world, observer=observer, goal=goal, tolerance=float(tolerance),
                  max_steps=settings.max_steps or max_steps, spec=spec, config=config,

@@ -8,10 +8,11 @@ import numpy as np
 import pytest
 
 from ncedf.controller import config_from_dict, config_to_dict
-from ncedf.presets import PRESETS, Observation, preset
+from ncedf.presets import PRESETS, Observation, observe, ours, preset
 from ncedf.robot import RobotSpec
+from solids import ported_wall, solid_wall
 
-OBSERVATIONS = (Observation(500), Observation(8, ball_radius=0.7), Observation(0))
+OBSERVATIONS = (Observation(500), Observation(8, ball_radius=0.7), Observation(0), Observation(500, convex=False))
 
 
 @pytest.mark.parametrize("name", sorted(PRESETS))
@@ -70,3 +71,18 @@ def test_a_bad_observation_is_named(bad, message):
 
 def test_an_observation_takes_numpy_counts():
     assert preset("paper", RobotSpec(4), Observation(np.int64(300))).mppi.max_points == 512
+
+
+def test_observe_tells_a_cloud_with_a_concave_still_cluster():
+    """Two observations of a ported wall and of a solid one (points still): the ported one is not convex,
+    and ours then keeps no obstacle model, route or lower collision weights."""
+    ported, solid = ported_wall(spacing=(0.125, 0.5, 0.5)), solid_wall(spacing=(0.125, 0.5, 0.5))
+    assert not observe(ported, ported).convex and observe(solid, solid).convex
+    spec = RobotSpec(4)
+    concave, convex = ours(spec, observe(ported, ported)), ours(spec, observe(solid, solid))
+    assert concave.model is None and concave.recovery is None and convex.model is not None
+    assert concave.mppi.w_coll > convex.mppi.w_coll
+    # The same points moving (a ported obstacle passing by) are closed whole: nothing is left out.
+    assert observe(ported, ported + np.float32([0.0, 0.1, 0.0])).convex
+    with pytest.raises(ValueError, match="same rows"):
+        observe(ported, solid)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from ncedf.geometry import robot_mesh_arrays
-from ncedf.presets import POINT_BUCKET, Observation, point_capacity, preset
+from ncedf.presets import POINT_BUCKET, Observation, observe, point_capacity, preset
 from ncedf.robot import RobotSpec, end_effector_pose
 from recorder import inspect as recorder_inspect
 from recorder import load_run
@@ -241,18 +241,17 @@ def test_ours_models_what_it_observes_whatever_the_world(tmp_path):
     trimesh.creation.box(extents=(1.0, 3.0, 2.0)).export(tmp_path / "box.stl")
     custom = EpisodeSettings("custom", 4, 0, shape="exact", options=(
         ("goal_position", "4,0,4"), ("obstacles", str(tmp_path / "box.stl")), ("offset", "3,0,3")))
-    # A closed box: one static polytope, the box itself (its faces are sampled).
+    # A closed box: one static polytope, the box itself (its faces are sampled); ours keeps its model.
     box, _ = _model_after_two_observations(custom)
     static = box.present & ~np.any(box.velocity != 0, axis=-1)
     assert int(np.sum(static)) == 1 and int(box.left_out) == 0
     np.testing.assert_allclose(box.lower[static][0], [2.5, -1.5, 2.0], atol=0.05)
     np.testing.assert_allclose(box.upper[static][0], [3.5, 1.5, 4.0], atol=0.05)
-    # The charging wall with its port is not convex: left to the cloud, and no route plans round it.
-    wall, scene = _model_after_two_observations(EpisodeSettings("charging", 4, 0, shape="exact"))
-    assert int(wall.left_out) == 1
-    port = np.asarray(charging.port_position(0))
-    for lower, upper in zip(wall.lower[wall.present], wall.upper[wall.present]):
-        assert not np.all((lower <= port) & (port <= upper))  # nothing in the model closes the port
+    # The charging wall with its port is not convex: the model would close the port, so ours keeps none.
+    scene = Episode(EpisodeSettings("charging", 4, 0, shape="exact")).scene
+    dt = scene.config.mppi.dt
+    seen = observe(scene.observer.observe(0.0), scene.observer.observe(dt), dt)
+    assert not seen.convex and scene.config.model is None and scene.config.recovery is None
     # Balls observed by their centres: no model, the racing stages.
     balls, scene = _model_after_two_observations(EpisodeSettings("spheres", 4, 0, shape="exact"))
     assert balls is None and scene.config.safety.sweep_first
