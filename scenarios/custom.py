@@ -12,8 +12,8 @@ Scenario options (kept in the run's settings): obstacles (absolute path),
 goal_position, offset, density, tolerance.
 
 The controller is the one every world gets (``ncedf.presets``): with
-``--controller ours`` it closes the convex clusters of the observed cloud and
-leaves the others to the points.
+``--controller ours`` it closes the observed cloud's clusters where every still
+one is convex (a closed convex part), and keeps to the points where one is not.
 """
 
 from __future__ import annotations
