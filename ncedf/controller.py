@@ -174,7 +174,10 @@ class Controller:
           ValueError (InvalidStateError for the state) naming the bad value;
           FloatingPointError if the computation produced a non-finite action.
         """
-        arc, goal, points, mask, polytopes = self._inputs(state, arc, goal, obstacle_points)
+        return self._advance(state, *self._inputs(state, arc, goal, obstacle_points))
+
+    def _advance(self, state: ControllerState, arc, goal, points, mask, polytopes):
+        """:meth:`step` on validated inputs (``_inputs``)."""
         action, mppi, info = mppi_step(self.spec, self.config, self.shape, state.mppi, arc, goal, points, mask,
                                        polytopes)
         route, c = state.route, self.config
@@ -190,8 +193,9 @@ class Controller:
         """Compile what :meth:`step` runs, before a closed loop's first timed step (results
         discarded): the step and, with a recovery stage, the route's programs (a plan to where the
         tip already is, and the check of a route's moves), which would otherwise compile mid-episode."""
-        jax.block_until_ready(self.step(state, arc, goal, obstacle_points))
-        arc, goal, points, mask, polytopes = self._inputs(state, arc, goal, obstacle_points)
+        inputs = self._inputs(state, arc, goal, obstacle_points)
+        jax.block_until_ready(self._advance(state, *inputs))
+        arc, goal, points, mask, polytopes = inputs
         if self.config.recovery is None or goal.shape != (3,):
             return
         here = np.asarray(arc)

@@ -52,6 +52,8 @@ from ncedf.validate import check_fields
 POINT_BUCKET = 256
 #: Links above which the release shortens the horizon.
 RELEASE_LONG_ROBOT = 6
+#: ``ours``: the effective sample size its temperature is chosen for, a share of the rollouts.
+OURS_ESS = 0.02
 #: ``ours`` with surface points: the convex model's single-linkage distance, m: above the longest
 #: edge of a box's minimum spanning tree at 4 points per m^2 (0.88 m), below the 1.39 m between the
 #: closest of the paper's boxes.
@@ -121,35 +123,34 @@ def _release_sizes(spec: RobotSpec, observation: Observation) -> tuple[int, int]
     return 800, (20 if spec.n_links <= RELEASE_LONG_ROBOT else 7)
 
 
-#: The release's core fields (``ours`` starts from them).
+#: The release's core fields.
 RELEASE_FIELDS = {"covariance": 0.1, "w_goal_terminal": 22.0, "w_coll_terminal": 1.1, "w_perturbation": 0.1}
+#: The release's clip of each noise component, m/s.
+RELEASE_CLIP = 0.5
 
 
 def release(spec: RobotSpec, observation: Observation) -> ControllerConfig:
     """The authors' release."""
     return ControllerConfig(mppi=_core(observation, *_release_sizes(spec, observation), **RELEASE_FIELDS),
-                            sampling=Sampling(clip=0.5))
+                            sampling=Sampling(clip=RELEASE_CLIP))
 
 
 def ours(spec: RobotSpec, observation: Observation) -> ControllerConfig:
     """The release with our stages, chosen by what is observed (module docstring)."""
-    sizes = _release_sizes(spec, observation)
+    base = dataclasses.replace(release(spec, observation), sampling=Sampling("release", clip=RELEASE_CLIP),
+                               temperature=EffectiveSampleSize(OURS_ESS), safety=SafetyFilter())
     if observation.ball_radius > 0:
-        return ControllerConfig(
-            mppi=_core(observation, *sizes, **RELEASE_FIELDS, goal_reach=True),
-            sampling=Sampling("release", BALLS_SMOOTHING, 0.5, unclipped=True),
-            temperature=EffectiveSampleSize(0.02),
+        return dataclasses.replace(
+            base, mppi=dataclasses.replace(base.mppi, goal_reach=True),
+            sampling=dataclasses.replace(base.sampling, smoothing=BALLS_SMOOTHING, unclipped=True),
             safety=SafetyFilter(sweep_first=True, follow_executed=True))
     if not observation.convex:
-        return ControllerConfig(mppi=_core(observation, *sizes, **RELEASE_FIELDS),
-                                sampling=Sampling("release", clip=0.5), temperature=EffectiveSampleSize(0.02),
-                                safety=SafetyFilter())
-    fields = {**RELEASE_FIELDS, "w_coll": SURFACE_W_COLL, "w_coll_terminal": SURFACE_W_COLL}
-    return ControllerConfig(
-        mppi=_core(observation, *sizes, **fields),
-        sampling=Sampling("release", clip=0.5, unclipped=True),
-        temperature=EffectiveSampleSize(0.02, StallEscape(STALL_STEPS, STALL_ESS)),
-        model=ConvexModel(CONVEX_LINK), safety=SafetyFilter(), recovery=RouteRecovery(after=STALL_STEPS))
+        return base
+    return dataclasses.replace(
+        base, mppi=dataclasses.replace(base.mppi, w_coll=SURFACE_W_COLL, w_coll_terminal=SURFACE_W_COLL),
+        sampling=dataclasses.replace(base.sampling, unclipped=True),
+        temperature=EffectiveSampleSize(OURS_ESS, StallEscape(STALL_STEPS, STALL_ESS)),
+        model=ConvexModel(CONVEX_LINK), recovery=RouteRecovery(after=STALL_STEPS))
 
 
 #: The presets by ``--controller`` name, with one line each for ``--help``.

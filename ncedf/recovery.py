@@ -75,11 +75,9 @@ def _fresh_progress(mppi: MPPIState) -> MPPIState:
 
 
 def plan_due(recovery: RouteRecovery, route: RouteState, stalled: int) -> bool:
-    """Whether a plan is due: no route is being followed, the stall count is ``after`` + 1,
+    """Whether a plan is due where no route is being followed: the stall count is ``after`` + 1,
     2 ``after`` + 1, ..., and plans are left."""
-    following = route.at < len(route.states) - 1
-    return (not following and stalled > recovery.after and (stalled - 1) % recovery.after == 0
-            and route.routes < recovery.tries)
+    return stalled > recovery.after and (stalled - 1) % recovery.after == 0 and route.routes < recovery.tries
 
 
 def start_route(recovery: RouteRecovery, spec: RobotSpec, route: RouteState, mppi: MPPIState, arc, goal,
