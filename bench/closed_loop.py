@@ -51,7 +51,7 @@ from ncedf.controller import Controller
 from ncedf.presets import PRESETS, Observation
 from ncedf.temperature import Fixed
 from recorder.cli import EXIT_STATUS, Stopped, exit_with, stop_on_signals
-from scenarios.episode import Episode, EpisodeSettings, option_positive
+from scenarios.episode import Episode, EpisodeSettings, build_scene, option_positive
 
 from arguments import parse_list, positive
 from solver_time import solver_times
@@ -230,7 +230,7 @@ def episodes_config_check(variant: str, settings: EpisodeSettings) -> None:
     """Raise ValueError naming a change that the variant's preset cannot take in this world."""
     preset, changes = resolve(variant)
     try:
-        changed(Episode(dataclasses.replace(settings, controller=preset)).scene.config, changes)
+        changed(build_scene(dataclasses.replace(settings, controller=preset)).config, changes)
     except (ValueError, TypeError) as exc:
         raise ValueError(f"variant {variant!r} in the {settings.scenario} scene: {exc}") from None
 
