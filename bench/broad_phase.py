@@ -8,7 +8,7 @@ whose exact clearance to the cluttered world (``scenarios.cluttered``, t = 0) is
 between 0.02 and 0.5 m: near a surface, where the collision cost decides. Around
 each, the rollouts of the ``ours`` preset (its sampling, covariance, noise clip,
 rollouts and horizon; zero nominal). Per density, the world is observed at that
-many points per m^2 of box face (``scenarios.world.make_observer``), and the
+many points per m^2 of box face (``scenarios.observe.make_observer``), and the
 broad phase with each selection (``ncedf.broad_phase``; the preset's sizes) and
 brute force give every rollout state's minimum distance to the cloud, per
 shape representation.
@@ -57,7 +57,8 @@ from recorder.cli import OneLineParser, exit_with
 from rows import print_rows
 from scenarios import cluttered
 from ncedf.presets import Observation, ours
-from scenarios.world import make_observer, true_distances_batch
+from scenarios.observe import make_observer
+from scenarios.truth import true_distances_batch
 
 #: Clearance band of the sampled states, m.
 NEAR = (0.02, 0.5)

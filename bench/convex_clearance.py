@@ -42,7 +42,7 @@ from ncedf.shapes import make_shape
 from recorder.cli import OneLineParser, exit_with
 from rows import print_rows
 from scenarios import cluttered
-from scenarios.world import make_observer
+from scenarios.observe import make_observer
 
 #: The forms timed: (name, ``dense`` argument of ``robot_clearance``).
 FORMS = (("passes", False), ("at once", True))

@@ -47,7 +47,7 @@ from ncedf.mppi import MPPIConfig, mppi_step
 from ncedf.robot import RobotSpec, project_state
 from ncedf.shapes import make_shape
 from scenarios import cluttered
-from scenarios.world import make_observer
+from scenarios.observe import make_observer
 
 
 def cluttered_points(n: int, seed: int = 0) -> np.ndarray:

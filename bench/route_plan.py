@@ -50,7 +50,8 @@ from recorder.cli import OneLineParser, exit_with
 from rows import print_rows
 from scenarios import cluttered
 from ncedf.presets import CONVEX_LINK
-from scenarios.world import World, make_observer
+from scenarios.observe import make_observer
+from scenarios.world import World
 
 #: Random states drawn to find the starts near a box.
 DRAWS = 4000

@@ -35,7 +35,9 @@ from ncedf.robot import RobotSpec, end_effector_pose, sample_arc_lengths
 from scenarios.cli import base_settings, make_parser, run_cli
 from scenarios.episode import (DRAW_ATTEMPTS, EpisodeSettings, Scene, check_reach, goal_position, make_scene,
                                option_positive, scenario_options)
-from scenarios.world import Box, MovingSphere, World, box_sdf, true_distances_batch
+from scenarios.box_distance import box_sdf
+from scenarios.truth import true_distances_batch
+from scenarios.world import Box, MovingSphere, World
 
 #: Static boxes: (centre, full edge lengths), m.
 BOXES = (

@@ -1,6 +1,6 @@
 """A user's own world: one obstacle file (mesh or point cloud) and a goal position.
 
-The obstacle is read by ``scenarios.world.load_obstacle`` (trimesh: .stl .obj
+The obstacle is read by ``scenarios.obstacle_file.load_obstacle`` (trimesh: .stl .obj
 .ply .off .glb ...; a .ply without faces, .xyz or .npy is a bare point cloud),
 shifted by ``--offset``. Mesh surfaces are observed at ``--density`` points per
 square metre; a cloud's points are observed as they are. The robot's base is
@@ -23,7 +23,8 @@ from pathlib import Path
 from scenarios.cli import base_settings, make_parser, run_cli
 from scenarios.episode import (EpisodeSettings, Scene, make_scene, option_positive, option_vector,
                                require_fixed_goal, scenario_options)
-from scenarios.world import CloudObstacle, World, load_obstacle
+from scenarios.obstacle_file import load_obstacle
+from scenarios.world import CloudObstacle, World
 
 DENSITY = 4.0
 TOLERANCE = 0.2

@@ -7,7 +7,7 @@ Time is ``t_k = k dt`` (dt = the controller's step, 0.05 s). MPPI step ``k``:
    the program is compiled before the first step, so no step pays for it);
 2. the executed state ``q_{k+1} = project_state(q_k + u_k dt)`` (the
    projection repairs the float32 drift of the sum constraint);
-3. the judge (``scenarios.world.judge_step``) checks the exact robot-to-obstacle
+3. the judge (``scenarios.judge.judge_step``) checks the exact robot-to-obstacle
    distance along the continuous motion ``q_k -> q_{k+1}``, obstacles moving,
    over ``[t_k, t_{k+1}]``.
 
@@ -82,7 +82,8 @@ from ncedf.robot import RobotSpec, arc_lengths_to_config, forward_kinematics, pr
 from ncedf.shapes import make_shape
 from recorder import Recorder, RecordingInterrupted
 from recorder.recorder import FORMATS, check_writable, output_paths
-from scenarios import world as world_mod
+from scenarios import judge as judge_mod
+from scenarios.observe import make_observer
 
 #: Runnable scenarios: the module ``scenarios.<name>`` defines ``build(settings) -> Scene``.
 SCENARIOS = ("cluttered", "spheres", "charging", "custom")
@@ -255,7 +256,7 @@ def make_scene(settings: EpisodeSettings, world, goal, tolerance: float, max_ste
         raise ValueError(f"goal must be a finite position (3,) or pose (4, 4), got {goal.tolist()}")
     if not tolerance > 0:
         raise ValueError(f"goal tolerance must be > 0, got {tolerance}")
-    observer = world_mod.make_observer(world, settings.env_seed)
+    observer = make_observer(world, settings.env_seed)
     spec = RobotSpec(settings.links)
     dt = MPPIConfig.dt
     observation = observe(observer.observe(0.0), observer.observe(dt), dt, ball_radius=world.margin_extra)
@@ -495,7 +496,7 @@ class Episode:
         arc = np.asarray(spec.straight_state(), dtype=np.float32)
         # The start is judged like a step, as the motion of length zero at t_0 (this also
         # compiles the judge before the progress bar starts).
-        start_distance = world_mod.judge_step(scene.world, spec, arc, arc, 0.0, 0.0).min_distance
+        start_distance = judge_mod.judge_step(scene.world, spec, arc, arc, 0.0, 0.0).min_distance
         # Compile the controller (and its route's programs) before the first timed step.
         mppi.warm_up(mppi.init(jax.random.PRNGKey(self.settings.seed)), arc, goal_jnp, scene.observer.observe(0.0))
 
@@ -591,7 +592,7 @@ class _Loop:
             action, state, info = jax.block_until_ready(mppi.step(state, arc, goal_jnp, points))
             self.solver_ms.append((time.perf_counter() - start) * 1e3)
             arc_next = np.asarray(project_state(arc + np.asarray(action) * dt, spec), dtype=np.float32)
-            judgement = world_mod.judge_step(world, spec, arc, arc_next, t, dt)
+            judgement = judge_mod.judge_step(world, spec, arc, arc_next, t, dt)
             self.min_true = min(self.min_true, judgement.min_distance)
             self.steps = k + 1
             collided = judgement.first_collision_time is not None

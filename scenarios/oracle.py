@@ -26,7 +26,7 @@ and a motion that reaches the goal no earlier than step k + 1 collides with a
 sphere that sits on the robot's base by then, whatever its rates.
 
 A motion counts only after the episodes' exact judge
-(:func:`scenarios.world.judge_step`) has passed every step from the start to
+(:func:`scenarios.judge.judge_step`) has passed every step from the start to
 its first state within the goal tolerance, where an episode would end.
 Horizons are tried shortest first; the result is the first judged motion.
 """
@@ -46,7 +46,8 @@ from ncedf.geometry import robot_signed_distance
 from ncedf.mppi import MPPIConfig
 from ncedf.robot import RobotSpec, forward_kinematics, project_state
 from ncedf.sampling import release_controls
-from scenarios.world import World, judge_step
+from scenarios.judge import judge_step
+from scenarios.world import World
 
 
 @dataclasses.dataclass(frozen=True)

@@ -18,7 +18,8 @@ from ncedf.sampling import Sampling, project_controls
 from ncedf.temperature import EffectiveSampleSize, Fixed, StallEscape
 from ncedf.robot import InvalidStateError, RobotSpec, end_effector_pose, project_state, sample_arc_lengths
 from ncedf.shapes import make_shape
-from scenarios.world import Box, World, make_observer
+from scenarios.observe import make_observer
+from scenarios.world import Box, World
 
 SPEC = RobotSpec(4)
 SMALL = ControllerConfig(MPPIConfig(samples=64, horizon=10, max_points=64))

@@ -19,7 +19,6 @@ from ncedf.temperature import EffectiveSampleSize
 from ncedf.precision import MATMUL
 from ncedf.robot import RobotSpec
 from ncedf.shapes import make_shape
-from scenarios.world import triangle_distance
 
 SPEC = RobotSpec(2)
 FULL = (MATMUL, MATMUL)
@@ -64,9 +63,3 @@ def test_controller_products_are_full_precision(stages):
     precisions = dot_precisions(closed.jaxpr)
     assert precisions  # the network's layers at least
     assert all(p == FULL for p in precisions), precisions
-
-
-def test_judge_products_are_full_precision():
-    closed = jax.make_jaxpr(triangle_distance)(jnp.ones((5, 3)), jnp.eye(3))
-    precisions = dot_precisions(closed.jaxpr)
-    assert len(precisions) == 6 and all(p == FULL for p in precisions), precisions

@@ -20,7 +20,9 @@ from ncedf.safety import SafetyFilter
 from ncedf.route import (RouteConfig, around, between, clearances, goal_states, lazy_shortest_path, plan_route,
                          roadmap_edges, shortest_path, tips)
 from ncedf.shapes import make_shape
-from scenarios.world import Box, World, make_observer, true_distances_batch
+from scenarios.observe import make_observer
+from scenarios.truth import true_distances_batch
+from scenarios.world import Box, World
 from solids import ported_wall
 
 # A two-link robot standing straight up (tip at (0, 0, 4)) and a goal below a bar that blocks the

@@ -135,7 +135,7 @@ def test_recorded_settings_rebuild_the_episode(twice):
 
 
 def test_a_signal_keeps_the_recorded_steps(clouds, recordings, monkeypatch):
-    judge = episode_mod.world_mod.judge_step
+    judge = episode_mod.judge_mod.judge_step
 
     def judge_then_signal(world, spec, arc0, arc1, t0, dt):
         if t0 > 1.5 * dt:  # during step 2

@@ -17,7 +17,8 @@ import pytest
 from ncedf.sampling import release_controls
 from ncedf.robot import RobotSpec, end_effector_pose, forward_kinematics, validate_state
 from scenarios.oracle import OracleConfig, closest_approach, plan_reach
-from scenarios.world import Box, MovingSphere, World, true_min_distance
+from scenarios.truth import true_min_distance
+from scenarios.world import Box, MovingSphere, World
 
 SPEC = RobotSpec(2)
 DT = 0.05

@@ -16,7 +16,7 @@ from recorder import load_run
 from scenarios import charging, cluttered, custom, spheres
 from scenarios import episode as episode_mod
 from scenarios.episode import Episode, EpisodeSettings
-from scenarios.world import true_min_distance
+from scenarios.truth import true_min_distance
 from test_world import box_sdf_np
 
 TINY = ["--links", "4", "--samples", "16", "--horizon", "4", "--max-steps", "2"]
@@ -61,7 +61,7 @@ def test_existing_recordings_are_kept(cluttered_run, capsys):
 @pytest.mark.parametrize("signum, status", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
 def test_a_signal_keeps_the_steps_so_far(cluttered_run, capsys, monkeypatch, signum, status):
     _, folder = cluttered_run
-    judge = episode_mod.world_mod.judge_step
+    judge = episode_mod.judge_mod.judge_step
 
     def judge_then_signal(world, spec, arc0, arc1, t0, dt):
         if t0 > 0.5 * dt:  # during step 1

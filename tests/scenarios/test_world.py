@@ -24,26 +24,12 @@ import trimesh
 
 from ncedf.geometry import robot_signed_distance, robot_surface_points
 from ncedf.robot import RobotSpec, config_to_arc_lengths, sample_arc_lengths
-from scenarios.world import (
-    DISTANCE_ERROR_BOUND,
-    Box,
-    CloudObstacle,
-    MeshObstacle,
-    MovingSphere,
-    World,
-    WorldError,
-    box_sdf,
-    judge_step,
-    load_obstacle,
-    make_observer,
-    robot_motion_bound,
-    substep_count,
-    surface_cell_bounds,
-    triangle_distance,
-    true_distances,
-    true_distances_batch,
-    true_min_distance,
-)
+from scenarios.box_distance import box_sdf, surface_cell_bounds
+from scenarios.judge import judge_step, robot_motion_bound, substep_count
+from scenarios.observe import make_observer
+from scenarios.obstacle_file import load_obstacle
+from scenarios.truth import DISTANCE_ERROR_BOUND, true_distances, true_distances_batch, true_min_distance
+from scenarios.world import Box, CloudObstacle, MeshObstacle, MovingSphere, World, WorldError
 
 SPEC = RobotSpec(2)
 L, R = SPEC.length, SPEC.radius
@@ -289,43 +275,6 @@ def test_deep_ridge_penetration_is_negative_and_exact_on_request(arcs):
     assert brute - cover - 1e-4 <= exact <= brute + DISTANCE_ERROR_BOUND
 
 
-def test_mesh_distance_matches_dense_brute_force(arcs):
-    rng = np.random.default_rng(2)
-    cases = []
-    # gap -2 mm: contact, not certified disjoint -> the exact refinement of the mesh's own triangles
-    for arc, gap in zip(arcs[:5], (0.003, 0.05, -0.06, 0.4, -0.002)):
-        surface, _ = dense_robot_surface(arc, 60, 24, 4)
-        p = surface[rng.integers(len(surface))]
-        n = outward(p, arc)
-        rotation, _ = np.linalg.qr(rng.normal(size=(3, 3)))  # a tilted cube: triangles in general position
-        corners = cube_mesh((0, 0, 0), rotation=rotation).vertices
-        centre = p + 0.6 * n  # then slide along n until the mesh's vertices are gap from the robot
-        for _ in range(4):
-            centre += (gap - robot_sdf_np(np.asarray(corners) + centre, arc).min()) * n
-        cases.append((arc, cube_mesh(centre, rotation=rotation)))
-    values = [true_distances(layout(mesh=m), SPEC, a, 0.0)[5] for a, m in cases]
-    for (arc, mesh), got in zip(cases, values):
-        fine = trimesh.Trimesh(np.asarray(mesh.vertices), np.asarray(mesh.faces))
-        verts, _ = trimesh.remesh.subdivide_to_size(fine.vertices, fine.faces, max_edge=0.004)
-        brute = robot_sdf_np(verts, arc).min()  # every mesh point is within 4 mm of a vertex
-        assert got <= brute + DISTANCE_ERROR_BOUND, (got, brute)
-        assert got >= brute - 0.004 - 1e-4, (got, brute)
-    assert values[2] < 0 and values[4] < 0, "a mesh pushed into the robot must give a negative distance"
-
-
-def test_box_shaped_mesh_agrees_with_the_box(arcs):
-    arc = arcs[4]
-    surface, _ = dense_robot_surface(arc, 60, 24, 4)
-    for i, gap in ((100, 0.3), (2000, 0.8)):
-        n = outward(surface[i], arc)
-        k = int(np.argmax(np.abs(n)))
-        centre = surface[i].copy()
-        centre[k] += np.sign(n[k]) * (gap + 0.25)
-        d = true_distances(layout(boxes=[Box(centre, (0.5, 0.5, 0.5))], mesh=cube_mesh(centre)), SPEC, arc, 0.0)
-        assert d[2] > 0
-        assert abs(d[2] - d[5]) <= DISTANCE_ERROR_BOUND
-
-
 # ----------------------------------------------------------------------------- files
 
 
@@ -494,7 +443,7 @@ def cell_samples(coords, half, disk, k=33):
     return out
 
 
-TRIANGLE = jnp.asarray(np.random.default_rng(11).uniform(-1.0, 1.0, (3, 3)) + [0.0, 0.0, 2.0])
+POINT = jnp.asarray([0.4, 0.9, 2.3])
 
 
 def box_columns(points):
@@ -502,9 +451,11 @@ def box_columns(points):
     return value[:, None], g[:, None]
 
 
-def triangle_columns(points):
-    value, g = triangle_distance(points, TRIANGLE)
-    return value[:, None], g[:, None]
+def point_columns(points):
+    """The distance to a point: convex and 1-Lipschitz, its gradient the unit direction away from it."""
+    offset = points - POINT
+    value = jnp.linalg.norm(offset, axis=-1)
+    return value[:, None], (offset / value[:, None])[:, None]
 
 
 cell_bounds = jax.jit(surface_cell_bounds, static_argnums=(1, 6))
@@ -519,7 +470,7 @@ def test_cell_lower_bound_holds_and_is_tight(arcs, disk):
         grid = cell_samples(coords, half, is_disk)
         pts = np.stack([np.asarray(surface_points(jnp.asarray(np.broadcast_to(g, (SPEC.n_links,) + g.shape)), arc,
                                                   SPEC))[l] for g, l in zip(grid, link)])
-        for f in (box_columns, triangle_columns):
+        for f in (box_columns, point_columns):
             value, bound = (np.asarray(x, np.float64) for x in cell_bounds(arc, SPEC, coords, half, is_disk, link, f))
             sampled = np.asarray(f(jnp.asarray(pts.reshape(-1, 3), jnp.float32))[0]).reshape(len(coords), -1).min(1)
             assert np.all(bound <= sampled + 1e-5), (f.__name__, np.max(bound - sampled))
