@@ -17,7 +17,8 @@ b0 (a disk's centre) and x* the point of R facing it (on the ring of b0 towards 
 onto the disk). Lower bounds: ``d_T(x0) - rho`` (``d_T`` is 1-Lipschitz, rho the path radius),
 and on lateral cells ``d_T(b0) - L dA - r`` (every lateral point at coordinate u is r from b(u),
 and ``|b(u) - b0| <= L |u - u0|``). A cell whose bound is within the tolerance of the best upper
-bound is closed, the others are split (along u only where the ring bound is the larger). The
+bound is closed, the others are split (along u only where the ring bound is the larger and the
+cell longer than wide). The
 certificate is the best upper bound minus the least bound of every cell: within ``TOLERANCE``
 (0.8 mm) up to 0.8 m, ``RELATIVE`` of the distance beyond.
 
@@ -127,7 +128,9 @@ def _evaluate(index, pose: dict, cells: dict, upper: np.ndarray, spec: RobotSpec
     open_ = ring < best - tolerance(best)
     at_centre[open_], _ = index.distance(centre[open_], best[open_] + rho[open_])
     lipschitz = np.where(open_, at_centre - rho, -np.inf)
-    return np.minimum(at_centre, facing), np.maximum(lipschitz, ring), ~disk & (ring >= lipschitz), centre, rho
+    # along u only while the ring bound leads and the cell is longer (in path length) than wide
+    long = (spec.length + theta * spec.radius) * half[:, 0] >= spec.radius * half[:, 1]
+    return np.minimum(at_centre, facing), np.maximum(lipschitz, ring), ~disk & (ring >= lipschitz) & long, centre, rho
 
 
 def _link_boxes(cells: dict, centre: np.ndarray, rho: np.ndarray, n: int, m: int):

@@ -358,7 +358,7 @@ def test_mesh_observation_on_the_surface_at_density():
     world = World(meshes=(mesh,), clouds=(CloudObstacle(np.zeros((7, 3))),), density=20.0)
     cloud = make_observer(world, 3).observe(0.0)
     assert len(cloud) == round(20.0 * m.area) + 7
-    _, dist, _ = trimesh.proximity.closest_point(trimesh.Trimesh(np.asarray(mesh.vertices), m.faces),
+    _, dist, _ = trimesh.proximity.closest_point(trimesh.Trimesh(mesh.vertices, mesh.faces),
                                                  cloud[:-7].astype(np.float64))
     assert dist.max() < 1e-5
 
