@@ -8,7 +8,8 @@ Everything is validated (settings, model file, scenario files, output paths)
 before any file is opened; a bad value prints one line ``error: ...`` naming it
 and exits 2. Ctrl-C / SIGTERM: during the run the recorder finishes the step,
 writes the outcome ``interrupted`` and closes the files; one line says what was
-kept; exit 130 (SIGINT) or 143 (SIGTERM).
+kept; exit 130 (SIGINT) or 143 (SIGTERM). A warning about a user's file (an
+open mesh, say) prints one line ``warning: ...``.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import argparse
 import math
 import signal
 import sys
+import warnings
 from pathlib import Path
 from typing import Callable
 
@@ -101,9 +103,20 @@ def summary(result: EpisodeResult) -> str:
     return "\n".join(lines)
 
 
+def _one_line_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    print(f"warning: {message}", file=sys.stderr)
+
+
 def run_cli(parser: argparse.ArgumentParser, argv: list[str] | None,
             make_settings: Callable[[argparse.Namespace], EpisodeSettings]) -> int:
     """Parse, validate, run one recorded episode with a progress bar, print the summary; the exit status."""
+    with warnings.catch_warnings():
+        warnings.showwarning = _one_line_warning
+        return _run(parser, argv, make_settings)
+
+
+def _run(parser: argparse.ArgumentParser, argv: list[str] | None,
+         make_settings: Callable[[argparse.Namespace], EpisodeSettings]) -> int:
     args = parser.parse_args(argv)
     try:
         with stop_on_signals():

@@ -8,11 +8,13 @@ and the faces whose boxes overlap given boxes. Positions in metres, float32 insi
 from __future__ import annotations
 
 import functools
+import os
+import sys
 
 import numpy as np
 import warp as wp
 
-wp.config.quiet = True
+wp.config.log_level = wp.LOG_ERROR  # no greeting, no compile times, no "no CUDA driver" on a CPU machine
 # Faces whose doubled area is below this fraction of their summed squared edge lengths are skipped by
 # Warp's closest-point search (its sliver test, 1e-6, with a margin for float32): the mesh checks treat
 # them as degenerate.
@@ -51,7 +53,17 @@ def _overlap_kernel(mesh: wp.uint64, lower: wp.array(dtype=wp.vec3), upper: wp.a
 
 @functools.lru_cache(maxsize=1)
 def _device() -> str:
-    wp.init()
+    """Warp's device, initialised once. Its native start-up says on stderr when a machine has no CUDA
+    driver, which is no news to a CPU user: that line is held back (errors still raise)."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with open(os.devnull, "w") as quiet:
+            os.dup2(quiet.fileno(), 2)
+            wp.init()
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
     return str(wp.get_preferred_device())
 
 

@@ -80,8 +80,10 @@ def _check_declared_faces(path: str, ext: str) -> None:
     with open(path, "rb") as handle:
         head = handle.read(4096)
     declared = None
-    if ext == ".stl" and not head.lstrip().lower().startswith(b"solid") and len(head) >= 84:
-        declared = struct.unpack("<I", head[80:84])[0]
+    if ext == ".stl" and len(head) >= 84:
+        count = struct.unpack("<I", head[80:84])[0]
+        if os.path.getsize(path) == 84 + 50 * count:  # a binary STL: 50 bytes per face after the header
+            declared = count
     elif ext == ".ply":
         for line in head.split(b"\n"):
             words = line.split()

@@ -1,0 +1,82 @@
+"""Meshes the judge cannot be exact on give one line naming the file and the problem; meshes it
+can take otherwise (open, with droppable degenerate faces) give one line of warning (scenarios.mesh_check)."""
+
+from __future__ import annotations
+
+import struct
+import warnings
+
+import numpy as np
+import pytest
+import trimesh
+
+from scenarios.mesh_check import MAX_FACES, MeshWarning
+from scenarios.obstacle_file import load_obstacle
+from scenarios.world import MeshObstacle, WorldError
+
+TETRA = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n"
+
+
+def binary_stl(path, faces: int):
+    """A binary STL of ``faces`` faces (all zero, the file sparse: nothing is written past the header)."""
+    with open(path, "wb") as handle:
+        handle.write(b"\0" * 80 + struct.pack("<I", faces))
+        handle.truncate(84 + 50 * faces)
+
+
+@pytest.mark.parametrize("name, content, problem", [
+    ("empty.obj", "# nothing\n", "no geometry"),
+    ("noface.ply", "ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\nproperty float y\nproperty float z\n"
+                   "element face 0\nproperty list uchar int vertex_indices\nend_header\n", ""),
+    ("nan.obj", TETRA.replace("v 1 0 0", "v nan 0 0"), "NaN"),
+    ("inf.obj", TETRA.replace("v 1 0 0", "v inf 0 0"), "NaN or infinite"),
+    ("flat.obj", "v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n", "degenerate"),
+    ("stray.obj", TETRA + "v 5 5 5\nv 6 6 6\nf 5 6 6\n", "degenerate faces"),
+    ("noise.stl", bytes(range(256)) * 3, ""),
+    ("huge.stl", "10^7", f"{MAX_FACES:,}"),
+])
+def test_bad_mesh_files_give_one_line_naming_the_file_and_the_problem(tmp_path, name, content, problem):
+    path = tmp_path / name
+    if content == "10^7":
+        binary_stl(path, 10_000_000)
+    elif isinstance(content, bytes):
+        path.write_bytes(content)
+    else:
+        path.write_text(content)
+    with pytest.raises(WorldError) as err:
+        load_obstacle(path)
+    message = str(err.value)
+    assert name in message and "\n" not in message and problem in message
+
+
+def test_an_open_or_non_manifold_mesh_is_a_surface_with_one_warning(tmp_path):
+    open_path = tmp_path / "open.obj"
+    open_path.write_text(TETRA.rsplit("f", 1)[0])  # one face missing
+    fin = tmp_path / "fin.obj"
+    fin.write_text(TETRA + "v 1 1 0\nf 1 2 5\n")  # a third face on the edge 1-2
+    for path in (open_path, fin):
+        with pytest.warns(MeshWarning) as caught:
+            mesh = load_obstacle(path)
+        assert len(caught) == 1 and path.name in str(caught[0].message) and "\n" not in str(caught[0].message)
+        assert not mesh.closed
+
+
+def test_degenerate_faces_on_the_surface_are_dropped_with_a_warning(tmp_path):
+    path = tmp_path / "sliver.obj"
+    path.write_text(TETRA + "v 0.5 0 0\nf 1 5 2\n")  # collinear along the tetrahedron's edge 1-2
+    with pytest.warns(MeshWarning, match="dropped 1 degenerate"):
+        mesh = load_obstacle(path)
+    assert len(mesh.faces) == 4 and mesh.closed
+
+
+def test_a_closed_mesh_is_closed_whatever_its_winding_and_vertex_sharing(tmp_path):
+    box = trimesh.creation.box(extents=(1, 2, 3))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        inward = MeshObstacle(box.vertices, box.faces[:, ::-1])
+        box.export(tmp_path / "box.stl")  # STL repeats each vertex per face
+        from_file = load_obstacle(tmp_path / "box.stl")
+    assert inward.closed and from_file.closed
+    # turned outwards: the volume the faces bound is positive
+    tri = inward.triangles
+    assert np.sum(tri[:, 0] * np.cross(tri[:, 1], tri[:, 2])) / 6 == pytest.approx(6.0)
