@@ -155,7 +155,7 @@ def surface_cell_bounds(arc, spec: RobotSpec, coords, half, disk, link, sdf: Cal
       arc: (M, 3) arc lengths, m.  coords: (C, 3) cell centres (u, psi, w); half: (C, 2)
       half extents along (u or w, psi); disk: (C,) bool (disk cell: varies w at fixed u);
       link: (C,) int.  sdf: ``points (C, 3) -> (values (C, K), subgradients (C, K, 3))``,
-      each column convex and 1-Lipschitz (e.g. :func:`box_sdf`, :func:`triangle_distance`).
+      each column convex and 1-Lipschitz (e.g. :func:`box_sdf`).
     Returns:
       value (C,) at the cell centres and a lower bound (C,) of ``min_k f_k`` over each cell.
     """

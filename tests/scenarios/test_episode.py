@@ -142,7 +142,7 @@ def test_a_signal_keeps_the_recorded_steps(clouds, recordings, monkeypatch):
             os.kill(os.getpid(), signal.SIGTERM)
         return judge(world, spec, arc0, arc1, t0, dt)
 
-    monkeypatch.setattr(episode_mod.world_mod, "judge_step", judge_then_signal)
+    monkeypatch.setattr(episode_mod.judge_mod, "judge_step", judge_then_signal)
     before = signal.getsignal(signal.SIGTERM)
     result = run_episode(settings_for(clouds["far"], (0.0, 0.0, 20.0), 6), out=recordings / "signal",
                          formats=("mcap",))

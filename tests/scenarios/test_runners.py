@@ -68,7 +68,7 @@ def test_a_signal_keeps_the_steps_so_far(cluttered_run, capsys, monkeypatch, sig
             os.kill(os.getpid(), signum)
         return judge(world, spec, arc0, arc1, t0, dt)
 
-    monkeypatch.setattr(episode_mod.world_mod, "judge_step", judge_then_signal)
+    monkeypatch.setattr(episode_mod.judge_mod, "judge_step", judge_then_signal)
     out = folder / f"stopped-{status}"
     assert cluttered.main(TINY[:-1] + ["5", "--out", str(out)]) == status
     err = [line for line in capsys.readouterr().err.splitlines() if line and not line.startswith("cluttered:")]
