@@ -32,7 +32,7 @@ from arguments import parse_list, positive
 from ncedf.robot import RobotSpec, forward_kinematics, sample_arc_lengths
 from recorder.cli import OneLineParser, exit_with
 from rows import print_rows
-from scenarios import cluttered, judge, mesh_index, robot_cells
+from scenarios import cluttered, judge, mesh_distance, mesh_index
 from scenarios.observe import make_observer
 from scenarios.world import MeshObstacle, World
 
@@ -93,7 +93,7 @@ def run_judge(step, world, spec: RobotSpec, states: np.ndarray, dt: float = 0.05
 class Clock:
     """Time spent in the new judge's BVH queries and robot geometry, while in a ``with`` block."""
 
-    PARTS = {"bvh": (mesh_index.MeshIndex, "distance"), "geometry": (robot_cells, "_cell_points_program")}
+    PARTS = {"bvh": (mesh_index.MeshIndex, "distance"), "geometry": (mesh_distance, "cell_points")}
 
     def __enter__(self):
         self.spent = dict.fromkeys(self.PARTS, 0.0)

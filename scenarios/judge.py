@@ -15,8 +15,10 @@ exact distance of :mod:`scenarios.truth`.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
+import jax
 import numpy as np
 
 from ncedf.robot import RobotSpec, bending_vector
@@ -24,11 +26,16 @@ from scenarios.truth import check_state, true_distances_certified
 from scenarios.world import World
 
 
+@functools.partial(jax.jit, static_argnums=1)
+def _bending_vector(arc, spec: RobotSpec):
+    return bending_vector(arc, spec)
+
+
 def robot_motion_bound(spec: RobotSpec, arc0, arc1) -> float:
     """Upper bound (m) on the path length of any robot body point while the arc lengths go
     linearly from ``arc0`` to ``arc1`` (M, 3): ``sum_j |Delta ab_j| ((M - j) L + r)``."""
     delta = check_state(arc1, spec) - check_state(arc0, spec)
-    dab = np.asarray(bending_vector(delta, spec), np.float64)  # linear in the arc lengths: the change of ab
+    dab = np.asarray(_bending_vector(delta, spec), np.float64)  # linear in the arc lengths: the change of ab
     lever = (spec.n_links - np.arange(spec.n_links)) * spec.length + spec.radius
     return float(np.sum(np.linalg.norm(dab, axis=-1) * lever))
 

@@ -53,6 +53,8 @@ RELATIVE = 0.001
 # The surface bound stops with the certificate it has after this many levels or open cells per state.
 _LEVELS = 40
 _CELLS = 20000
+# Pieces a cell is cut into along u where the ring bound leads (elsewhere: halves along A and psi).
+_CUTS = 8
 
 
 def tolerance(upper: np.ndarray) -> np.ndarray:
@@ -65,10 +67,10 @@ def _take(cells: dict, keep) -> dict:
 
 
 def _split(cells: dict, along_a_only: np.ndarray) -> dict:
-    """Cut the ``along_a_only`` cells into four along A (u or w), the others in halves along A and psi."""
+    """Cut the ``along_a_only`` cells into ``_CUTS`` along A (u or w), the others in halves along A and psi."""
     both = ~along_a_only
-    offsets = [(s, 0.0) for s in (-0.75, -0.25, 0.25, 0.75)]
-    parts = [(_take(cells, along_a_only), offsets, (0.25, 1.0)),
+    offsets = [((2 * k + 1) / _CUTS - 1.0, 0.0) for k in range(_CUTS)]
+    parts = [(_take(cells, along_a_only), offsets, (1.0 / _CUTS, 1.0)),
              (_take(cells, both), [(a, b) for a in (-0.5, 0.5) for b in (-0.5, 0.5)], (0.5, 0.5))]
     out = []
     for part, shifts, scale in parts:

@@ -77,7 +77,8 @@ class MeshIndex:
         self.mesh = wp.Mesh(points=self._points, indices=self._faces, support_winding_number=True)
 
     def _vectors(self, points: np.ndarray):
-        return wp.array(np.ascontiguousarray(points, np.float32).reshape(-1, 3), dtype=wp.vec3, device=self.device)
+        data = np.ascontiguousarray(points, np.float32).reshape(-1, 3)
+        return wp.array(data, dtype=wp.vec3, device=self.device, copy=self.device != "cpu")
 
     def distance(self, points: np.ndarray, radius: np.ndarray | None = None):
         """The distance (P,) m from each of ``points`` (P, 3) to the mesh, capped at ``radius`` (P,) m
@@ -88,8 +89,9 @@ class MeshIndex:
         out = wp.zeros(len(points), dtype=wp.vec3, device=self.device)
         found = wp.zeros(len(points), dtype=wp.int32, device=self.device)
         wp.launch(_closest_kernel, dim=len(points),
-                  inputs=[self.mesh.id, self._vectors(points), wp.array(cap.astype(np.float32), device=self.device),
-                          out, found], device=self.device)
+                  inputs=[self.mesh.id, self._vectors(points),
+                          wp.array(cap.astype(np.float32), device=self.device, copy=self.device != "cpu"), out, found],
+                  device=self.device)
         hit = found.numpy().astype(bool)
         closest = np.where(hit[:, None], out.numpy().astype(np.float64), np.nan)
         distance = np.where(hit, np.linalg.norm(closest - points, axis=-1), cap)
