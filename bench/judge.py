@@ -9,8 +9,8 @@ so that its surface passes 5 cm from the middle of a 7-link robot, and the robot
 judge them: 2 cm of motion between checks; about 3 per step). Printed per face count: judged
 steps per second with the new judge (``scenarios.judge``) and with the judge of ``--old``
 (the git revision before it, loaded from history: it is only run up to ``--old-limit`` faces,
-where it takes seconds per step), their ratio (each timed on a second pass over the walk, after
-the first has compiled every batch size and built the BVH), the closest judged distance and the largest
+where it takes seconds per step), their ratio (each the best of ``--repeats`` passes over the walk,
+after a first that compiles every batch size and builds the BVH), the closest judged distance and the largest
 certificate; for the new judge, where its time goes (BVH queries, robot geometry, the rest).
 Then the paper's cluttered scene (boxes and spheres, 7 links) judged by both, and the time to
 draw the observation of the largest mesh.
@@ -19,6 +19,7 @@ draw the observation of the largest mesh.
 from __future__ import annotations
 
 import argparse
+import math
 import subprocess
 import sys
 import time
@@ -81,11 +82,14 @@ def placed(mesh: trimesh.Trimesh, spec: RobotSpec, arc: np.ndarray) -> MeshObsta
     return MeshObstacle(mesh.vertices + centre, mesh.faces, f"torus {len(mesh.faces)}")
 
 
-def run_judge(step, world, spec: RobotSpec, states: np.ndarray, dt: float = 0.05):
-    """Judged steps per second, the closest distance and the largest certificate."""
-    start = time.perf_counter()
-    found = [step(world, spec, a, b, i * dt, dt) for i, (a, b) in enumerate(zip(states[:-1], states[1:]))]
-    elapsed = time.perf_counter() - start
+def run_judge(step, world, spec: RobotSpec, states: np.ndarray, repeats: int = 1, dt: float = 0.05):
+    """Judged steps per second (the best of ``repeats`` passes), the closest distance and the largest
+    certificate."""
+    elapsed = math.inf
+    for _ in range(repeats):
+        start = time.perf_counter()
+        found = [step(world, spec, a, b, i * dt, dt) for i, (a, b) in enumerate(zip(states[:-1], states[1:]))]
+        elapsed = min(elapsed, time.perf_counter() - start)
     return (len(found) / elapsed, min(j.min_distance for j in found),
             max(getattr(j, "certificate", np.nan) for j in found), np.mean([j.substeps for j in found]))
 
@@ -125,16 +129,17 @@ def mesh_rows(args, old) -> object:
         mesh = placed(torus(faces), spec, states[0])
         world = World(meshes=(mesh,))
         run_judge(judge.judge_step, world, spec, states)  # builds the BVH, compiles every batch size once
+        start = time.perf_counter()
         with Clock() as clock:
-            rate, closest, certificate, substeps = run_judge(judge.judge_step, world, spec, states)
-        total = args.steps / rate
+            rate, closest, certificate, substeps = run_judge(judge.judge_step, world, spec, states, args.repeats)
+        total = time.perf_counter() - start
         shares = [clock.spent[k] / total for k in ("bvh", "geometry")]
         old_text, ratio = "-", "-"
         if old is not None and len(mesh.faces) <= args.old_limit:
             old_world = old.World(meshes=(old.MeshObstacle(mesh.vertices, mesh.faces),))
             old_steps = states[: args.old_steps + 1]
             old.judge_step(old_world, spec, old_steps[0], old_steps[1], 0.0, 0.05)
-            old_rate = run_judge(old.judge_step, old_world, spec, old_steps)[0]
+            old_rate = run_judge(old.judge_step, old_world, spec, old_steps, args.repeats)[0]
             old_text, ratio = f"{old_rate:11.3f}", f"{rate / old_rate:7.0f}x"
         yield (f"{len(mesh.faces):>8}  {rate:10.1f}   ({shares[0]:4.0%} / {shares[1]:4.0%} / "
                f"{1 - sum(shares):4.0%})      {old_text:>11}   {ratio:>7}  {closest:9.4f}  {certificate:13.5f}  "
@@ -147,15 +152,19 @@ def paper_rows(args, old):
     states = walk(spec, args.steps, args.seed + 1)
     world = cluttered.make_world()
     run_judge(judge.judge_step, world, spec, states)
-    rate = run_judge(judge.judge_step, world, spec, states)[0]
-    line = f"cluttered (boxes, spheres): new {rate:.1f} steps/s"
     if old is not None:
         old_world = old.World(spheres=tuple(old.MovingSphere(s.centre, s.radius, s.velocity, s.half_period)
                                             for s in world.spheres),
                               boxes=tuple(old.Box(b.centre, b.size) for b in world.boxes))
-        old.judge_step(old_world, spec, states[0], states[1], 0.0, 0.05)
-        old_rate = run_judge(old.judge_step, old_world, spec, states)[0]
-        line += f", old {old_rate:.1f} steps/s, new/old {rate / old_rate:.2f}"
+        run_judge(old.judge_step, old_world, spec, states)
+    rates = {"new": [], "old": []}
+    for _ in range(args.repeats):  # interleaved, so that both see the same load
+        rates["new"].append(run_judge(judge.judge_step, world, spec, states)[0])
+        if old is not None:
+            rates["old"].append(run_judge(old.judge_step, old_world, spec, states)[0])
+    line = f"cluttered (boxes, spheres): new {max(rates['new']):.1f} steps/s"
+    if old is not None:
+        line += f", old {max(rates['old']):.1f} steps/s, new/old {max(rates['new']) / max(rates['old']):.2f}"
     yield line
     mesh = placed(torus(max(args.faces)), spec, states[0])
     for density in (4.0, 400.0):
@@ -175,6 +184,7 @@ def main(argv=None) -> int:
     p.add_argument("--old-limit", type=positive, default=2000, help="largest mesh the old judge is run on")
     p.add_argument("--old", default=OLD, help=f"git revision of the old judge (default {OLD}; 'none' skips it)")
     p.add_argument("--seed", type=int, default=0, help="random walk seed (default 0)")
+    p.add_argument("--repeats", type=positive, default=3, help="timed passes, the best kept (default 3)")
     args = p.parse_args(argv)
     old = None if args.old == "none" else old_judge(args.old)
     status = print_rows(mesh_rows(args, old), lambda line: [line])
