@@ -103,6 +103,12 @@ def summary(result: EpisodeResult) -> str:
     return "\n".join(lines)
 
 
+def scenario_main(scenario: str, description: str, max_steps: int, argv: list[str] | None) -> int:
+    """The whole command of a runner without options of its own."""
+    return run_cli(make_parser(scenario, description, max_steps=max_steps), argv,
+                   lambda args: base_settings(scenario, args))
+
+
 def _one_line_warning(message, category, filename, lineno, file=None, line=None) -> None:
     print(f"warning: {message}", file=sys.stderr)
 

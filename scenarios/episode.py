@@ -65,7 +65,7 @@ import re
 import signal
 import sys
 import time
-from typing import Any, NamedTuple
+from typing import Any, Callable, NamedTuple
 
 import flax.serialization
 import jax
@@ -86,7 +86,7 @@ from scenarios import judge as judge_mod
 from scenarios.observe import make_observer
 
 #: Runnable scenarios: the module ``scenarios.<name>`` defines ``build(settings) -> Scene``.
-SCENARIOS = ("cluttered", "spheres", "charging", "custom")
+SCENARIOS = ("cluttered", "spheres", "charging", "custom", "window", "cabinet", "pipe", "slot", "pillars")
 #: Goal kinds of the scenarios that draw goals; a goal may also be a position "X,Y,Z" (m).
 GOALS = ("fixed", "random")
 #: Most draws of a random environment or goal from one env_seed before a scenario gives up.
@@ -269,6 +269,14 @@ def make_scene(settings: EpisodeSettings, world, goal, tolerance: float, max_ste
 def build_scene(settings: EpisodeSettings) -> Scene:
     """The scene of ``settings.scenario`` (``scenarios.<scenario>.build``)."""
     return importlib.import_module(f"scenarios.{settings.scenario}").build(settings)
+
+
+def fixed_goal_scene(settings: EpisodeSettings, make_world: Callable, tolerance: float, max_steps: int) -> Scene:
+    """The scene of a runner without options whose ``make_world(env_seed)`` gives (world, goal position)."""
+    require_fixed_goal(settings)
+    scenario_options(settings)
+    world, goal = make_world(settings.env_seed)
+    return make_scene(settings, world, goal, tolerance, max_steps, goal_position=np.asarray(goal).tolist())
 
 
 def require_fixed_goal(settings: EpisodeSettings) -> None:
