@@ -178,8 +178,15 @@ def test_a_mesh_wholly_inside_the_robot_is_a_collision(arcs, closed):
 def test_the_robot_wholly_inside_a_closed_mesh_is_a_collision(arcs):
     frames = np.asarray(forward_kinematics(jnp.asarray(arcs[1]), SPEC))
     room = sphere_at(frames[1, :3, 3], 0.6, subdivisions=2)
-    value = check(room, arcs[1])
-    assert value < 0
+    # the room is convex: from inside, the distance to its surface is the least of its face planes' (closed form)
+    surface, cover = dense_surface(arcs[1])
+    depth = np.min(np.einsum("fk,fk->f", room.face_normals, room.triangles[:, 0])[None]
+                   - surface @ room.face_normals.T, axis=1)
+    assert depth.min() > 0 and room.contains(surface[:1])[0]
+    value, certificate = judged(room, arcs[1])
+    # the truth is -dist(R, T), in [-depth.min(), -(depth.min() - cover)]; the value never below it
+    assert -depth.min() - 1e-5 <= value and value - certificate <= -(depth.min() - cover) + 1e-5
+    assert value < 0 and certificate <= CERTIFIED
 
 
 def test_the_judge_reports_the_certificate_and_sees_the_mesh(arcs):
