@@ -82,11 +82,12 @@ from ncedf.robot import RobotSpec, arc_lengths_to_config, forward_kinematics, pr
 from ncedf.shapes import make_shape
 from recorder import Recorder, RecordingInterrupted
 from recorder.recorder import FORMATS, check_writable, output_paths
+from scenarios import WORLDS
 from scenarios import judge as judge_mod
 from scenarios.observe import make_observer
 
 #: Runnable scenarios: the module ``scenarios.<name>`` defines ``build(settings) -> Scene``.
-SCENARIOS = ("cluttered", "spheres", "charging", "custom", "window", "cabinet", "pipe", "slot", "pillars")
+SCENARIOS = ("cluttered", "spheres", "custom", *WORLDS)
 #: Goal kinds of the scenarios that draw goals; a goal may also be a position "X,Y,Z" (m).
 GOALS = ("fixed", "random")
 #: Most draws of a random environment or goal from one env_seed before a scenario gives up.

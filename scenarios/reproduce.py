@@ -1,6 +1,6 @@
 """The experiments behind the paper's Tables I-IV, written as recordings for ``analysis/``.
 
-    python -m scenarios.reproduce {table1,table2,table3,table4,timing,all} --out runs/ [--quick]
+    python -m scenarios.reproduce {table1,table2,table3,table4,timing,worlds,all} --out runs/ [--quick]
 
 Each table has its folder under ``--out`` (``table1`` ... ``table4``; with
 ``--quick`` ``table1-quick`` ...), holding one recording per network or episode
@@ -21,11 +21,14 @@ package versions (quick results are marked there and in every table).
   pointcloud:5000 x every controller of ``ncedf.presets.PRESETS``
   (``--envs`` environments; ``--envs-5000`` for pointcloud:5000).
 * Table IV: cluttered, 4 / 5 / 7 links x ``--seeds`` seeds x every controller.
+* worlds (beyond the paper's): the charging port and the confined-space runners (window, cabinet,
+  pipe, slot, pillars), 4 / 5 / 7 links x ``--seeds`` environment seeds x ours and paper (the
+  solver-time reference, at the same rollouts and horizon).
 * timing (the MPPI time figures): one step of the paper's controller (800 samples, horizon 20) per
   representation, against link count (4 / 5 / 7 at 500 points) and obstacle points (100 ... 5000 at
   4 links), ``--timing-repeats`` timed steps each, recorded as ``solver_ms`` rows.
 
-Tables III and IV run through ``scenarios.sweep.run_sweep``. Everything resumes:
+Tables III and IV and the worlds run through ``scenarios.sweep.run_sweep``. Everything resumes:
 a network or episode whose recording is closed with a final outcome is skipped,
 so the same command finishes an interrupted experiment.
 
@@ -67,7 +70,9 @@ INFERENCE_POINTS = 500
 TIMING_SHAPES = TABLE3_SHAPES
 TIMING_LINK_COUNTS = (4, 5, 7)
 TIMING_POINT_COUNTS = (100, 250, 500, 1000, 2000, 5000)
-TABLES = ("table1", "table2", "table3", "table4", "timing")
+TABLES = ("table1", "table2", "table3", "table4", "worlds", "timing")
+#: The controllers run in the worlds beyond the paper's (``scenarios.WORLDS``).
+WORLD_CONTROLLERS = ("ours", "paper")
 PAPER_EPOCHS = 100
 
 
@@ -82,7 +87,7 @@ class Budget:
       timing_repeats: timed inference calls and MPPI steps per network (after compilation).
       timing_samples, timing_horizon: MPPI setting of the step timing.
       envs, envs_5000: Table III environments (pointcloud:5000: its own count).
-      seeds: Table IV controller seeds.
+      seeds: Table IV controller seeds, and the worlds' environment seeds.
       samples, horizon, max_steps: episode overrides (None: the controller's and scenario's).
       workers: sweep worker processes (None: one per core).
       layers, widths: the Table I grid.
@@ -280,7 +285,7 @@ def run_networks(table: str, out: Path, budget: Budget, seed: int, command: str)
 
 # ---------------------------------------------------------------- Tables III and IV: sweeps
 def sweep_episodes(table: str, budget: Budget):
-    """Every episode of Table III or IV."""
+    """Every episode of Table III or IV or of the worlds."""
     from ncedf.presets import PRESETS
     from scenarios.sweep import sweep_settings
 
@@ -292,6 +297,11 @@ def sweep_episodes(table: str, budget: Budget):
         small = [s for s in TABLE3_SHAPES if s != "pointcloud:5000"]
         return (sweep_settings(["spheres"], [4], small, controllers, budget.envs, 1, **common)
                 + sweep_settings(["spheres"], [4], ["pointcloud:5000"], controllers, budget.envs_5000, 1, **common))
+    if table == "worlds":
+        from scenarios import WORLDS
+
+        return sweep_settings(list(WORLDS), list(TABLE4_LINKS), ["ncedf"], WORLD_CONTROLLERS, budget.seeds, 1,
+                              **common)
     return sweep_settings(["cluttered"], list(TABLE4_LINKS), ["ncedf"], controllers, 1, budget.seeds, **common)
 
 
@@ -300,7 +310,7 @@ def run_episodes(table: str, out: Path, budget: Budget, seed: int, command: str)
     from ncedf.presets import PRESETS
     from scenarios.sweep import run_sweep, summary_table
 
-    controllers = tuple(PRESETS)
+    controllers = WORLD_CONTROLLERS if table == "worlds" else tuple(PRESETS)
     where = folder(out, table, budget)
     episodes = sweep_episodes(table, budget)
     write_manifest(where, table, budget, command, {"controllers": list(controllers), "episodes": len(episodes)})

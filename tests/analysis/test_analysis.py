@@ -52,6 +52,11 @@ def cluttered_settings(seed: int, density: str | None = None, goal: str = "fixed
                            max_steps=4, options=options, goal=goal)
 
 
+def window_settings(controller: str) -> EpisodeSettings:
+    return EpisodeSettings("window", 4, seed=0, shape="spheres", controller=controller, samples=16, horizon=3,
+                           max_steps=3)
+
+
 @pytest.fixture(scope="module", autouse=True)
 def cache(tmp_path_factory):
     """Datasets in a temporary cache folder (the scripts inherit it)."""
@@ -71,7 +76,8 @@ def folder(tmp_path_factory, cache):
     results = {}
     for settings in [sphere_settings(e) for e in range(SPHERE_ENVS)] + [sphere_settings(0, SPHERE_GOAL)] + [
             cluttered_settings(s) for s in (0, 1)] + [cluttered_settings(0, density="2"),
-                                                      cluttered_settings(0, goal=OTHER_GOAL)]:
+                                                      cluttered_settings(0, goal=OTHER_GOAL)] + [
+            window_settings(c) for c in ("ours", "paper")]:
         sub = runs / settings.scenario
         sub.mkdir(exist_ok=True)
         name = episode_name(settings)
@@ -167,6 +173,22 @@ def test_table4_matches_the_episodes(folder, tables):
     drawn = [r for s, r in results.values() if s.scenario == "cluttered" and s.goal == OTHER_GOAL]
     assert other["episodes"] == len(drawn) == 1 and other["n_success"] == (drawn[0].outcome == "success")
     assert math.isnan(other["paper_reach_step"])  # the paper has figures for its own goal only
+
+
+def test_the_worlds_table_matches_the_episodes(folder, tables):
+    _, results, _ = folder
+    out, _ = tables
+    df = pd.read_csv(out / "worlds.csv").set_index("controller")
+    runs = {s.controller: r for s, r in results.values() if s.scenario == "window"}
+    assert sorted(df.index) == ["ours", "paper"] and set(df["world"]) == {"window"}
+    for controller, result in runs.items():
+        row = df.loc[controller]
+        assert row["episodes"] == 1 and row["n_success"] == (result.outcome == "success")
+        assert row["min_clearance"] == pytest.approx(result.min_true_distance, abs=1e-6)  # the CSV keeps 6 places
+        assert row["solver_ms"] == pytest.approx(pooled([result])[0] * 1e3, rel=1e-4)
+    assert df.loc["ours", "solver_vs_paper"] == pytest.approx(df.loc["ours", "solver_ms"] / df.loc["paper", "solver_ms"],
+                                                              rel=1e-4)
+    assert df.loc["paper", "solver_vs_paper"] == pytest.approx(1.0)
 
 
 def test_table2_metrics_match_the_saved_networks(folder, tables):
