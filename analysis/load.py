@@ -108,7 +108,16 @@ def hardware(rec: Recordings, folders) -> str:
     return "; ".join(names) or "unknown machine (no experiment manifest)"
 
 
-def check_folder(folder: str | Path) -> None:
-    """RecorderError with a one-line message when ``folder`` is not a folder."""
+#: The folder the analysis reads by default, where it exists (the sweep's and reproduction's).
+DEFAULT_RUNS = "runs"
+
+
+def recordings_folder(folder: str | Path | None) -> Path:
+    """The folder to read: ``folder``, or by default ``runs/`` where it exists and else the
+    current folder (where a runner writes ``recording.rrd`` / ``.mcap``). RecorderError with a
+    one-line message when it is not a folder."""
+    if folder is None:
+        folder = DEFAULT_RUNS if Path(DEFAULT_RUNS).is_dir() else "."
     if not Path(folder).is_dir():
         raise RecorderError(f"{folder} is not a folder of recordings")
+    return Path(folder)

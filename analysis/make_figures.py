@@ -19,7 +19,7 @@ if __package__ in (None, ""):  # run as a script: make the repository importable
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from analysis.cli import run_until_stopped  # noqa: E402
-from analysis.load import check_folder, load  # noqa: E402
+from analysis.load import load, recordings_folder  # noqa: E402
 from analysis.make_tables import report_problems  # noqa: E402
 from recorder import RecorderError  # noqa: E402
 from recorder.cli import OneLineParser, exit_with  # noqa: E402
@@ -27,7 +27,8 @@ from recorder.cli import OneLineParser, exit_with  # noqa: E402
 
 def parse_args(argv=None) -> argparse.Namespace:
     p = OneLineParser(prog="python analysis/make_figures.py", description=__doc__.split("\n\n")[0])
-    p.add_argument("runs", nargs="?", default="runs", help="folder of recordings (default runs/)")
+    p.add_argument("runs", nargs="?", default=None,
+                   help="folder of recordings (default runs/, or the current folder where there is none)")
     p.add_argument("--out", default="figures", help="output folder (default figures/)")
     p.add_argument("--model", help="N-CEDF weights for Fig. 3 (default: the shipped model)")
     return p.parse_args(argv)
@@ -39,7 +40,7 @@ def main(argv=None) -> int:
 
 def _main(args) -> int:
     try:
-        check_folder(args.runs)
+        args.runs = recordings_folder(args.runs)
         if args.model is not None and not Path(args.model).with_suffix(".msgpack").is_file():
             raise RecorderError(f"model {args.model} not found (expected {Path(args.model).with_suffix('.msgpack')})")
         rec = load(args.runs)

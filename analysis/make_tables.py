@@ -2,7 +2,8 @@
 
     python analysis/make_tables.py [RUNS] [--out tables/]
 
-Reads every recording under RUNS (default runs/) through ``recorder.read``; each table puts the
+Reads every recording under RUNS (default runs/, or the current folder where there is none, as
+after ``python -m scenarios.cluttered``) through ``recorder.read``; each table puts the
 paper's figures beside ours. A table whose recordings are missing is skipped with a line naming
 the command that produces them; unreadable, unclosed or unfinished recordings are listed and
 left out.
@@ -18,7 +19,7 @@ if __package__ in (None, ""):  # run as a script: make the repository importable
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from analysis.cli import run_until_stopped  # noqa: E402
-from analysis.load import check_folder, load  # noqa: E402
+from analysis.load import load, recordings_folder  # noqa: E402
 from analysis.tables import BUILDERS  # noqa: E402
 from recorder import RecorderError  # noqa: E402
 from recorder.cli import OneLineParser, exit_with  # noqa: E402
@@ -26,7 +27,8 @@ from recorder.cli import OneLineParser, exit_with  # noqa: E402
 
 def parse_args(argv=None) -> argparse.Namespace:
     p = OneLineParser(prog="python analysis/make_tables.py", description=__doc__.split("\n\n")[0])
-    p.add_argument("runs", nargs="?", default="runs", help="folder of recordings (default runs/)")
+    p.add_argument("runs", nargs="?", default=None,
+                   help="folder of recordings (default runs/, or the current folder where there is none)")
     p.add_argument("--out", default="tables", help="output folder (default tables/)")
     return p.parse_args(argv)
 
@@ -44,7 +46,7 @@ def main(argv=None) -> int:
 
 def _main(args) -> int:
     try:
-        check_folder(args.runs)
+        args.runs = recordings_folder(args.runs)
         rec = load(args.runs)
     except RecorderError as exc:
         print(f"error: {exc}", file=sys.stderr)
