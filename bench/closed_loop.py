@@ -18,7 +18,8 @@ refused for that world.
 Every variant runs the same episodes (``scenarios.episode``, no recording): the
 cluttered scene for each of ``--links`` x ``--seeds`` controller seeds, and the
 dynamic spheres for ``--envs`` environments x ``--goals`` (controller seed
-``--seed0``), 4 links. Printed per variant and group: episodes, success /
+``--seed0``), 4 links, and each world of ``scenarios.WORLDS`` named in
+``--scenarios`` for ``--links`` x ``--envs`` environments. Printed per variant and group: episodes, success /
 collision / stuck counts with 95% Wilson intervals, the median reach step of
 the successes, the solver time per step (mean +- std over all its steps) and
 its ratio to ``paper``'s in the same run.
@@ -51,6 +52,7 @@ from ncedf.controller import Controller
 from ncedf.presets import PRESETS, Observation
 from ncedf.temperature import Fixed
 from recorder.cli import EXIT_STATUS, Stopped, exit_with, stop_on_signals
+from scenarios import WORLDS
 from scenarios.episode import Episode, EpisodeSettings, build_scene, option_positive
 
 from arguments import parse_list, positive
@@ -76,6 +78,8 @@ VARIANTS: dict[str, tuple[str, dict]] = {
     "ours-weights": ("ours", {"mppi.w_coll": 1.1, "mppi.w_coll_terminal": 1.1}),
     "ours-follow": ("ours", {"safety.follow_executed": False}),
     "ours-route": ("ours", {"recovery": None}),
+    "ours-grid": ("ours", {"model": None, "guide": None, "recovery": None}),  # the points alone
+    "ours-guide": ("ours", {"guide": None}),
     "paper": ("paper", {}),
 }
 #: z for a 95% interval.
@@ -148,6 +152,11 @@ def episodes(args) -> list[tuple[str, EpisodeSettings]]:
             for env in range(args.env0, args.env0 + args.envs):
                 out.append((f"spheres {goal}", EpisodeSettings("spheres", 4, args.seed0, env_seed=env, goal=goal,
                                                                max_steps=args.max_steps)))
+    for world in (w for w in WORLDS if w in args.scenarios):
+        for links in args.links:
+            for env in range(args.env0, args.env0 + args.envs):
+                out.append((f"{world} L{links}", EpisodeSettings(world, links, args.seed0, env_seed=env,
+                                                                 max_steps=args.max_steps)))
     return out
 
 
@@ -250,7 +259,8 @@ def main(argv=None) -> int:
                    help=f"comma-separated, from: {', '.join(VARIANTS)}, or PRESET:STAGE.FIELD=VALUE[:...] "
                         "(default release,ours,paper)")
     p.add_argument("--scenarios", default="cluttered,spheres",
-                   type=lambda t: parse_list(t, str, "scenario", ("cluttered", "spheres")))
+                   type=lambda t: parse_list(t, str, "scenario", ("cluttered", "spheres") + WORLDS),
+                   help=f"comma-separated, from cluttered, spheres, {', '.join(WORLDS)} (default cluttered,spheres)")
     p.add_argument("--links", default="4,5,7", type=lambda t: parse_list(t, int, "links", above_zero=True),
                    help="cluttered link counts (default 4,5,7)")
     p.add_argument("--seeds", type=positive, default=3, help="cluttered controller seeds per link count (default 3)")
@@ -258,8 +268,9 @@ def main(argv=None) -> int:
                    help="first controller seed; the spheres' episodes use this one (default 0)")
     p.add_argument("--density", type=density_arg,
                    help="cluttered: observed points per m^2 of box face (default: the paper's 4)")
-    p.add_argument("--envs", type=positive, default=10, help="spheres environments per goal kind (default 10)")
-    p.add_argument("--env0", type=int, default=0, help="first spheres environment (default 0)")
+    p.add_argument("--envs", type=positive, default=10,
+                   help="spheres environments per goal kind, and each world's per link count (default 10)")
+    p.add_argument("--env0", type=int, default=0, help="first spheres or world environment (default 0)")
     p.add_argument("--goals", default="fixed", type=lambda t: parse_list(t, str, "goal", ("fixed", "random")),
                    help="spheres goal kinds (default fixed)")
     p.add_argument("--max-steps", type=positive, help="override every scenario's step budget")

@@ -9,11 +9,12 @@ dataclass of its own module:
   (``ncedf.temperature``);
 * ``broad_phase``: the candidate points each rollout state is scored against, or None for
   every point (``ncedf.broad_phase``);
-* ``model``: None (the observed cloud alone) or the convex model of the cloud
-  (``ncedf.obstacle_model``);
+* ``model``: None (the observed cloud alone), the convex model of the cloud
+  (``ncedf.obstacle_model``) or its grid model (``ncedf.grid_model``);
+* ``guide``: None or the goal distance along the grid model's free space (``ncedf.guide``);
 * ``safety``: None or the check of the executed action (``ncedf.safety``);
 * ``recovery``: None or the route round the static obstacles (``ncedf.recovery``), which
-  plans round the model's polytopes.
+  plans round the obstacle model.
 
 The jitted step (``ncedf.mppi.mppi_step``) runs the core with the stages that act
 inside it; :class:`Controller` validates the inputs, pads the cloud to the
@@ -35,6 +36,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from ncedf.broad_phase import BroadPhase
+from ncedf.grid_model import GridModel
+from ncedf.guide import Guide
 from ncedf.mppi import MPPIConfig, MPPIState, init_state, mppi_step
 from ncedf.obstacle_model import ConvexModel
 from ncedf.recovery import RouteRecovery, RouteState, no_route, supervise
@@ -49,8 +52,13 @@ from ncedf.temperature import EffectiveSampleSize, Fixed, StallEscape
 STAGES = {
     "mppi": ((MPPIConfig,), False), "sampling": ((Sampling,), False),
     "temperature": ((Fixed, EffectiveSampleSize), False), "broad_phase": ((BroadPhase,), True),
-    "model": ((ConvexModel,), True), "safety": ((SafetyFilter,), True), "recovery": ((RouteRecovery,), True),
+    "model": ((ConvexModel, GridModel), True), "guide": ((Guide,), True), "safety": ((SafetyFilter,), True),
+    "recovery": ((RouteRecovery,), True),
 }
+
+
+#: The kind of a stage whose metadata names none (recordings made while it had one kind).
+UNTYPED = {"model": "ConvexModel"}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -61,7 +69,8 @@ class ControllerConfig:
     sampling: Sampling = Sampling()
     temperature: Fixed | EffectiveSampleSize = Fixed()
     broad_phase: BroadPhase | None = BroadPhase()
-    model: ConvexModel | None = None
+    model: ConvexModel | GridModel | None = None
+    guide: Guide | None = None
     safety: SafetyFilter | None = None
     recovery: RouteRecovery | None = None
 
@@ -73,6 +82,8 @@ class ControllerConfig:
                 raise ValueError(f"ControllerConfig.{name} must be {allowed}, got {value!r}")
         if self.recovery is not None and self.model is None:
             raise ValueError("ControllerConfig.recovery plans round the obstacle model: give a model too")
+        if self.guide is not None and not isinstance(self.model, GridModel):
+            raise ValueError("ControllerConfig.guide measures the grid model's free space: give a GridModel")
 
 
 class ControllerState(NamedTuple):
@@ -106,6 +117,7 @@ class Controller:
         if shape.spec.n_links != spec.n_links:
             raise ValueError(f"the shape is for {shape.spec.n_links} links, the robot has {spec.n_links}")
         self.spec, self.shape, self.config = spec, shape, config
+        self._guided = (None, None, None)  # the last grid, goal and guide field
 
     def init(self, key) -> ControllerState:
         """Zero plan (paper: the initial reference is zero), the key, no observation yet, no route."""
@@ -150,16 +162,29 @@ class Controller:
             raise ValueError(f"the state's plan must have shape {expected}, got {np.shape(state.mppi.nominal)}")
         arc = jnp.asarray(validate_state(arc, self.spec), jnp.float32)
         points, mask = self.pad_points(obstacle_points)
-        model = self.config.model
-        polytopes = (None if model is None else
-                     model.fit(points, mask, state.previous, state.previous_mask, self.config.mppi.dt))
-        return arc, self.check_goal(goal), points, mask, polytopes
+        goal = self.check_goal(goal)
+        return (arc, goal, points, mask, *self.fit_model(state, points, mask, goal))
 
-    def check_moves(self, arc, points, mask, polytopes):
+    def fit_model(self, state: ControllerState, points, mask, goal):
+        """The fitted obstacle model of the padded cloud and the guide's field (each None without one)."""
+        model, c = self.config.model, self.config
+        if model is None:
+            return None, None
+        if isinstance(model, ConvexModel):
+            return model.fit(points, mask, state.previous, state.previous_mask, c.mppi.dt), None
+        position = np.asarray(goal)[:3, 3] if goal.shape == (4, 4) else np.asarray(goal)
+        grid = model.fit(points, mask, state.previous, state.previous_mask, position)
+        if c.guide is None:
+            return grid, None
+        if self._guided[0] is not grid or self._guided[1] != position.tobytes():
+            self._guided = (grid, position.tobytes(), c.guide.fit(grid, position))
+        return grid, self._guided[2]
+
+    def check_moves(self, arc, points, mask, model):
         """``moves (C, M, 3) -> (C,)``: the safety filter's clearance of moves from ``arc`` over a step."""
         substeps = (self.config.safety or SafetyFilter()).substeps
         return lambda moves: _check_moves(self.config.mppi.dt, substeps, self.config.broad_phase, self.shape, arc,
-                                          moves, points, mask, polytopes=polytopes)
+                                          moves, points, mask, model=model)
 
     def step(self, state: ControllerState, arc, goal, obstacle_points=None):
         """One control step with validated inputs.
@@ -176,10 +201,11 @@ class Controller:
         """
         return self._advance(state, *self._inputs(state, arc, goal, obstacle_points))
 
-    def _advance(self, state: ControllerState, arc, goal, points, mask, polytopes):
+    def _advance(self, state: ControllerState, arc, goal, points, mask, model, guide):
         """:meth:`step` on validated inputs (``_inputs``)."""
         action, mppi, info = mppi_step(self.spec, self.config, self.shape, state.mppi, arc, goal, points, mask,
-                                       polytopes)
+                                       model, guide)
+        polytopes = model
         route, c = state.route, self.config
         if c.recovery is not None and goal.shape == (3,):
             action, route, mppi = supervise(c.recovery, self.spec, self.check_moves(arc, points, mask, polytopes),
@@ -195,7 +221,7 @@ class Controller:
         tip already is, and the check of a route's moves), which would otherwise compile mid-episode."""
         inputs = self._inputs(state, arc, goal, obstacle_points)
         jax.block_until_ready(self._advance(state, *inputs))
-        arc, goal, points, mask, polytopes = inputs
+        arc, goal, points, mask, polytopes, _ = inputs
         if self.config.recovery is None or goal.shape != (3,):
             return
         here = np.asarray(arc)
@@ -232,7 +258,7 @@ def _stage(name: str, data):
         return None
     kinds = {kind.__name__: kind for kind in STAGES[name][0]}
     data = dict(data)
-    kind = kinds[next(iter(kinds))] if len(kinds) == 1 else kinds.get(data.pop("type", None))
+    kind = kinds[next(iter(kinds))] if len(kinds) == 1 else kinds.get(data.pop("type", UNTYPED.get(name)))
     if kind is None:
         raise ValueError(f"unknown {name} type; the metadata must name one of {', '.join(kinds)}")
     if isinstance(data.get("escape"), dict):

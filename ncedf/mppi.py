@@ -12,7 +12,8 @@ sampling stage, ``ncedf.sampling``), rolls them out to the states
   the first reach, so a rollout is not charged for drifting on after it;
 * collision: ``w_coll / max(d(x^k) - delta_s, epsilon)`` with ``d`` the least
   predicted distance to the obstacles (the cloud through the robot's shape
-  representation, and the obstacle model where there is one);
+  representation, and the obstacle model where there is one); with the guide
+  stage (``ncedf.guide``) the goal's position distance is measured along free space;
 * state: ``w_state * sum over links and chambers of (l_min - l)_+ + (l - l_max)_+``;
 * the release's terminal weights at ``x^H`` and its control-perturbation cost
   ``w_perturbation * sum_k U_k . eps_k / sigma^2`` (0 in the paper).
@@ -44,7 +45,8 @@ import jax
 import jax.numpy as jnp
 
 from ncedf.broad_phase import rollout_min_distances
-from ncedf.convex import robot_clearance
+from ncedf.guide import guided_distance
+from ncedf.obstacle_model import model_clearance
 from ncedf.robot import RobotSpec, forward_kinematics
 from ncedf.safety import filtered_action, limit_to_state_bounds, step_clearance
 from ncedf.sampling import bounded_controls, sample_noise, update_plan
@@ -149,27 +151,33 @@ def init_state(spec: RobotSpec, config: MPPIConfig, key) -> MPPIState:
                      jnp.asarray(jnp.inf, jnp.float32), jnp.asarray(0, jnp.int32))
 
 
-def goal_distance(frames_ee: jnp.ndarray, goal: jnp.ndarray) -> jnp.ndarray:
+def goal_distance(frames_ee: jnp.ndarray, goal: jnp.ndarray, guide=None) -> jnp.ndarray:
     """Goal cost distance: Frobenius ``||T_ee - T_G||`` for a pose goal (4, 4), else
-    ``||p_ee - p_G||`` for a position goal (3,); ``frames_ee`` (..., 4, 4) -> (...,)."""
-    if goal.shape == (4, 4):
+    ``||p_ee - p_G||`` for a position goal (3,); ``frames_ee`` (..., 4, 4) -> (...,). With a
+    ``guide`` field (``ncedf.guide``) the position's distance is the guided one."""
+    if guide is None and goal.shape == (4, 4):
         return jnp.sqrt(jnp.sum((frames_ee - goal) ** 2, axis=(-2, -1)))
-    return jnp.sqrt(jnp.sum((frames_ee[..., :3, 3] - goal) ** 2, axis=-1))
+    if guide is None:
+        return jnp.sqrt(jnp.sum((frames_ee[..., :3, 3] - goal) ** 2, axis=-1))
+    guided = guided_distance(guide, frames_ee[..., :3, 3])
+    if goal.shape == (4, 4):  # the rotation's share, and the guided position's
+        return jnp.sqrt(jnp.sum((frames_ee[..., :3, :3] - goal[:3, :3]) ** 2, axis=(-2, -1)) + guided**2)
+    return guided
 
 
-def state_distances(config, shape, arc, arcs, frames, first, points, mask, polytopes):
+def state_distances(config, shape, arc, arcs, frames, first, points, mask, model):
     """(N, H) predicted distance of each rollout state (N, H, M, 3) to the obstacles: the cloud
-    (P, 3) with mask (P,), the polytopes of the obstacle model (moved to the state's time), and
+    (P, 3) with mask (P,), the fitted obstacle model (its polytopes moved to the state's time), and
     with the safety filter's ``sweep_first`` the first state scored over its step (its controls
     ``first`` (N, M, 3)), m."""
     c = config.mppi
     dist = rollout_min_distances(config.broad_phase, shape, arcs, points, mask, frames)
-    if polytopes is not None:
+    if model is not None:
         ahead = c.dt * jnp.arange(1, c.horizon + 1, dtype=arcs.dtype)  # the times of x^1 .. x^H, s
-        dist = jnp.minimum(dist, robot_clearance(arcs, frames, shape.spec, polytopes, ahead))
+        dist = jnp.minimum(dist, model_clearance(model, arcs, frames, shape.spec, ahead))
     if config.safety is not None and config.safety.sweep_first:
         swept = step_clearance(c.dt, config.safety.substeps, config.broad_phase, shape, arc, first, points, mask,
-                               polytopes, shared=True)
+                               model, shared=True)
         dist = dist.at[:, 0].min(swept)
     return dist
 
@@ -201,7 +209,7 @@ def track_progress(c: MPPIConfig, state: MPPIState, goal_now) -> tuple[jnp.ndarr
     return best_goal, stalled
 
 
-def execute(config, shape, arc, updated, raw, u, total, dist, points, mask, polytopes):
+def execute(config, shape, arc, updated, raw, u, total, dist, points, mask, model):
     """The executed action (M, 3), its checked clearance, the safety filter's choice and the next
     warm start: the plan's first control, or with a safety filter its checked candidate."""
     c, spec = config.mppi, shape.spec
@@ -209,13 +217,13 @@ def execute(config, shape, arc, updated, raw, u, total, dist, points, mask, poly
         action = limit_to_state_bounds(arc, updated[0], c.dt, spec)
         return action, jnp.asarray(jnp.nan, arc.dtype), jnp.asarray(0), raw
     check = functools.partial(step_clearance, c.dt, config.safety.substeps, config.broad_phase, shape, arc,
-                              points=points, mask=mask, polytopes=polytopes)
+                              points=points, mask=mask, model=model)
     return filtered_action(config.safety, check, spec, arc, c.dt, c.safety_margin, updated, raw, u,
                            jnp.argmin(total), jnp.argmax(dist[:, 0]))
 
 
 @functools.partial(jax.jit, static_argnums=(0, 1))
-def mppi_step(spec: RobotSpec, config, shape, state: MPPIState, arc, goal, points, mask, polytopes=None):
+def mppi_step(spec: RobotSpec, config, shape, state: MPPIState, arc, goal, points, mask, model=None, guide=None):
     """One MPPI iteration: a pure function, jitted with ``spec`` and the composed ``config``
     (``ncedf.controller.ControllerConfig``) static; the representation is a pytree argument.
 
@@ -223,7 +231,8 @@ def mppi_step(spec: RobotSpec, config, shape, state: MPPIState, arc, goal, point
       shape: a :class:`ncedf.shapes.Shape`.  state: :class:`MPPIState`.
       arc: (M, 3) current arc lengths, m.  goal: (3,) position or (4, 4) pose.
       points: (max_points, 3) obstacle cloud, m; mask: (max_points,) bool, True = real point.
-      polytopes: the obstacle model's ``ncedf.convex.Polytopes``, or None.
+      model: the fitted obstacle model (``ncedf.convex.Polytopes`` or ``ncedf.grid_model.Grid``), or None.
+      guide: the guide's field (``ncedf.guide``), or None for the straight goal distance.
     Returns:
       action (M, 3) m/s, the next :class:`MPPIState`, and an :class:`MPPIInfo`.
     """
@@ -237,21 +246,21 @@ def mppi_step(spec: RobotSpec, config, shape, state: MPPIState, arc, goal, point
     # Materialised once, so every consumer reads the same frames: XLA otherwise recomputes parts of the
     # chain inside some consumers, with a rounding that can depend on the number of CPU threads.
     frames = jax.lax.optimization_barrier(forward_kinematics(arcs, spec))  # (N, H, M + 1, 4, 4)
-    goal_d = goal_distance(frames[..., -1, :, :], goal)  # (N, H)
-    dist = state_distances(config, shape, arc, arcs, frames, u[:, 0], points, mask, polytopes)
+    goal_d = goal_distance(frames[..., -1, :, :], goal, guide)  # (N, H)
+    dist = state_distances(config, shape, arc, arcs, frames, u[:, 0], points, mask, model)
     c_goal, c_coll, c_state, c_pert = cost_terms(c, spec, arcs, goal_d, dist, nominal, eps)
     total = c_goal + c_coll + c_state + c_pert
 
     lo, hi = jnp.min(total), jnp.max(total)
     spread = hi - lo
     norm = jnp.where(spread > 0, (total - lo) / jnp.where(spread > 0, spread, 1.0), 0.0)
-    best_goal, stalled = track_progress(c, state, goal_distance(forward_kinematics(arc, spec)[-1], goal))
+    best_goal, stalled = track_progress(c, state, goal_distance(forward_kinematics(arc, spec)[-1], goal, guide))
     temperature = config.temperature.choose(norm, stalled)
     w = jnp.exp(-norm / temperature)
     w = w / jnp.sum(w)
     raw, updated = update_plan(config.sampling, c.control_bound, c.alpha_u, nominal, perturbed, u, w)
     action, clearance, choice, raw = execute(config, shape, arc, updated, raw, u, total, dist, points, mask,
-                                             polytopes)
+                                             model)
     next_nominal = jnp.concatenate([raw[1:], raw[-1:]], axis=0)
 
     best = jnp.argmin(total)

@@ -12,6 +12,9 @@ state's distance is then the smaller of the representation's and a lower bound
 of the body's clearance to the model, every polytope moved at the mean velocity
 of its points to the state's time.
 
+:class:`ncedf.grid_model.GridModel` closes the static cloud on a voxel grid instead,
+without assuming convexity; :func:`model_clearance` scores a state against either fit.
+
 The fit runs in numpy outside the jitted step (a static group of points is
 fitted once and cached), so it is the controller shell's job
 (``ncedf.controller``); this module holds the setting and the fit.
@@ -21,9 +24,11 @@ from __future__ import annotations
 
 import dataclasses
 
+import jax.numpy as jnp
 import numpy as np
 
-from ncedf.convex import Polytopes, fit_polytopes, static_rows
+from ncedf.convex import Polytopes, fit_polytopes, robot_clearance, static_rows
+from ncedf.grid_model import Grid, grid_clearance
 from ncedf.validate import check_fields
 
 
@@ -48,6 +53,15 @@ class ConvexModel:
         static = static_rows(points, mask, previous, previous_mask)
         velocity = cloud_velocity(points, mask, previous, previous_mask, dt)
         return fit_polytopes(points[mask], self.link, static[mask], velocity[mask], bounds=(True,))
+
+
+def model_clearance(fitted: Polytopes | Grid, arcs, frames, spec, t=0.0):
+    """(B...,) lower bound of the clearance of the states arcs (B..., M, 3) with frames
+    (B..., M + 1, 4, 4) to a fitted obstacle model (polytopes moved ``t`` s ahead, or a grid), m."""
+    if isinstance(fitted, Grid):
+        clearance = grid_clearance(arcs, frames, spec, fitted)
+        return jnp.broadcast_to(clearance, jnp.broadcast_shapes(clearance.shape, jnp.shape(t)))
+    return robot_clearance(arcs, frames, spec, fitted, t)
 
 
 def cloud_velocity(points: np.ndarray, mask: np.ndarray, previous: np.ndarray, previous_mask: np.ndarray,

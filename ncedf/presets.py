@@ -22,10 +22,14 @@
     update), is repelled less (collision weights 0.4) and escapes stalls:
     sharper weights after 30 steps without progress, and a route round the
     static polytopes;
-  - surface points with a still cluster that is not convex (a wall with a port,
-    a ring): the model would close its concavity, and a fast, less repelled
-    robot slides into the surface between its points, so it stays as above
-    without those stages.
+  - surface points with a still cluster that is not convex (a wall with a
+    window, a cabinet, a pipe): the convex model would close its concavity, so
+    the still points are closed on a grid instead (the grid model, at the
+    widest hole expected between the samples, ``Observation.gap``, less where
+    that would shut the goal in); the goal cost measures the tip's distance
+    along the model's free space (the guide), which leads it round walls to an
+    opening; and as with the convex model it is repelled less and escapes
+    stalls, its routes planned round the grid.
 
 Nothing here depends on a scenario: a world is described by :class:`Observation`.
 The evidence for each choice is in ``results/README.md``.
@@ -36,12 +40,16 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from ncedf.controller import ControllerConfig
+from ncedf.grid_model import GridModel
+from ncedf.guide import Guide
 from ncedf.mppi import MPPIConfig
 from ncedf.obstacle_model import ConvexModel
 from ncedf.recovery import RouteRecovery
 from ncedf.robot import RobotSpec
+from ncedf.route import RouteConfig
 from ncedf.safety import SafetyFilter
 from ncedf.sampling import Sampling
 from ncedf.temperature import EffectiveSampleSize, StallEscape
@@ -58,12 +66,17 @@ OURS_ESS = 0.02
 #: edge of a box's minimum spanning tree at 4 points per m^2 (0.88 m), below the 1.39 m between the
 #: closest of the paper's boxes.
 CONVEX_LINK = 1.0
-#: ``ours`` with surface points: the collision weights (running and terminal) with the convex model.
+#: ``ours`` with surface points: the collision weights (running and terminal) with an obstacle model.
 SURFACE_W_COLL = 0.4
 #: ``ours`` with surface points: steps without progress before the stall escape and the route.
 STALL_STEPS = 30
 #: ``ours`` with surface points: the stall escape's effective sample size, a share of the rollouts.
 STALL_ESS = 0.005
+#: ``ours`` with a grid model: the route's clearances (nodes, edges) against it, m (the grid's bound
+#: lies below the body's true clearance by up to a cell's diagonal).
+GRID_ROUTE = RouteConfig(node_clearance=0.1, edge_clearance=0.05)
+#: Neighbours whose distance estimates the samples' spacing (:func:`sampling_gap`).
+GAP_NEIGHBOURS = 8
 #: ``ours`` with balls: the low-pass noise's beta (a rollout keeps its direction over the horizon).
 BALLS_SMOOTHING = 0.9
 
@@ -77,14 +90,17 @@ class Observation:
       ball_radius: > 0 where every point is the centre of a ball of this radius, m (the
         obstacles are observed completely); 0 where the points lie on obstacle surfaces.
       convex: every cluster of points that stays still is convex (:func:`observe` tells).
+      gap: the radius of the widest hole expected between the still points, m
+        (:func:`sampling_gap`; 0 without still points).
     """
 
     n_points: int
     ball_radius: float = 0.0
     convex: bool = True
+    gap: float = 0.0
 
     def __post_init__(self):
-        check_fields(self, counts=("n_points",), non_negative=("ball_radius",), flags=("convex",))
+        check_fields(self, counts=("n_points",), non_negative=("ball_radius", "gap"), flags=("convex",))
 
 
 def observe(first, second, dt: float = MPPIConfig.dt, ball_radius: float = 0.0) -> Observation:
@@ -96,7 +112,20 @@ def observe(first, second, dt: float = MPPIConfig.dt, ball_radius: float = 0.0) 
         raise ValueError(f"the two clouds must have the same rows, got {first.shape} and {second.shape}")
     mask = np.ones(len(first), bool)
     model = ConvexModel(CONVEX_LINK).fit(second, mask, first, mask, dt)
-    return Observation(len(second), ball_radius=ball_radius, convex=not int(model.left_out))
+    still = second[np.all(first == second, axis=1)]
+    return Observation(len(second), ball_radius=ball_radius, convex=not int(model.left_out),
+                       gap=sampling_gap(still))
+
+
+def sampling_gap(points: np.ndarray) -> float:
+    """The radius of the widest hole expected among n points (n, 3) drawn on surfaces, m: at a
+    density rho per m^2 a disc of radius r is empty with probability exp(-pi rho r^2), so the widest
+    of the n points' holes has ``pi rho r^2 ~ ln n``; ``pi rho`` is estimated as k / r_k^2 from the
+    median distance r_k to the k-th neighbour (k = ``GAP_NEIGHBOURS``). 0 for fewer than k + 1 points."""
+    if len(points) <= GAP_NEIGHBOURS:
+        return 0.0
+    reach = np.median(cKDTree(points).query(points, GAP_NEIGHBOURS + 1)[0][:, -1])
+    return float(reach * np.sqrt(np.log(len(points)) / GAP_NEIGHBOURS))
 
 
 def point_capacity(n_points: int) -> int:
@@ -145,7 +174,11 @@ def ours(spec: RobotSpec, observation: Observation) -> ControllerConfig:
             sampling=dataclasses.replace(base.sampling, smoothing=BALLS_SMOOTHING, unclipped=True),
             safety=SafetyFilter(sweep_first=True, follow_executed=True))
     if not observation.convex:
-        return base
+        return dataclasses.replace(
+            base, mppi=dataclasses.replace(base.mppi, w_coll=SURFACE_W_COLL, w_coll_terminal=SURFACE_W_COLL),
+            model=GridModel(max(observation.gap, spec.radius), spec.radius), guide=Guide(spec.radius),
+            temperature=EffectiveSampleSize(OURS_ESS, StallEscape(STALL_STEPS, STALL_ESS)),
+            recovery=RouteRecovery(after=STALL_STEPS, route=GRID_ROUTE))
     return dataclasses.replace(
         base, mppi=dataclasses.replace(base.mppi, w_coll=SURFACE_W_COLL, w_coll_terminal=SURFACE_W_COLL),
         sampling=dataclasses.replace(base.sampling, unclipped=True),

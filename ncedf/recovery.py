@@ -7,7 +7,7 @@ wrapper runs around an environment's step: when the core's stall count reaches
 ``after`` + 1, and again every ``after`` steps while it grows (at most
 ``tries`` plans per episode), it plans a route from the current state round
 the obstacle model's static polytopes (``ncedf.route``; the moving ones are
-left out), unless the model left a static cluster out as not convex (the
+left out) or its grid, unless the model left a static cluster out as not convex (the
 roadmap would not see that obstacle). Where the roadmap holds none, nothing
 changes. Else it executes the
 route: each step moves to the farthest route state within one step's bound
@@ -82,8 +82,11 @@ def plan_due(recovery: RouteRecovery, route: RouteState, stalled: int) -> bool:
 
 def start_route(recovery: RouteRecovery, spec: RobotSpec, route: RouteState, mppi: MPPIState, arc, goal,
                 polytopes: Polytopes) -> tuple[RouteState, MPPIState]:
-    """Plan a route from ``arc`` (M, 3) to the position ``goal`` (3,) round the static polytopes."""
-    static = polytopes._replace(present=polytopes.present & ~np.any(polytopes.velocity != 0, axis=-1))
+    """Plan a route from ``arc`` (M, 3) to the position ``goal`` (3,) round the static polytopes (or
+    the grid model, which holds the static points alone)."""
+    static = polytopes
+    if isinstance(polytopes, Polytopes):
+        static = polytopes._replace(present=polytopes.present & ~np.any(polytopes.velocity != 0, axis=-1))
     path = plan_route(spec, static, np.asarray(arc), np.asarray(goal), jax.random.fold_in(mppi.key, ROUTE_SALT),
                       recovery.route)
     if path is None:  # the stall count goes on, and with it the stall escape
@@ -119,7 +122,7 @@ def supervise(recovery: RouteRecovery, spec: RobotSpec, check_moves, margin: flo
       (action (M, 3) m/s, RouteState, MPPIState).
     """
     if route.at >= len(route.states) - 1:
-        if not plan_due(recovery, route, int(mppi.stalled)) or int(polytopes.left_out):
+        if not plan_due(recovery, route, int(mppi.stalled)) or int(getattr(polytopes, "left_out", 0)):
             return action, route, mppi  # no plan where the model misses an obstacle: the roadmap would not see it
         route, mppi = start_route(recovery, spec, route, mppi, arc, goal, polytopes)
         if route.at >= len(route.states) - 1:

@@ -9,7 +9,8 @@ over arc lengths, checked against the convex model of the static obstacles
 
 * nodes: the current state, ``samples`` random valid states
   (``ncedf.robot.sample_arc_lengths``) whose clearance to the polytopes
-  (``ncedf.convex.robot_clearance``, a lower bound of the body's) is at least
+  (``ncedf.obstacle_model.model_clearance``, a lower bound of the body's; the
+  grid model's too) is at least
   ``node_clearance``, ``local_samples`` states around the current one
   (:func:`around`) with at least ``edge_clearance``, and goal states: the
   ``goal_candidates`` free nodes whose end effectors lie nearest the goal,
@@ -56,7 +57,8 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
-from ncedf.convex import Polytopes, robot_clearance
+from ncedf.convex import Polytopes
+from ncedf.obstacle_model import model_clearance
 from ncedf.robot import RobotSpec, end_effector_pose, forward_kinematics, project_state, sample_arc_lengths
 
 #: States per jitted clearance call (padded), so every call reuses one program.
@@ -114,7 +116,7 @@ class RouteConfig:
 @functools.partial(jax.jit, static_argnums=1)
 def _clearance(arcs: jnp.ndarray, spec: RobotSpec, polytopes: Polytopes) -> jnp.ndarray:
     """(PASS,) clearance of (PASS, M, 3) states to the polytopes, m."""
-    return robot_clearance(arcs, forward_kinematics(arcs, spec), spec, polytopes)
+    return model_clearance(polytopes, arcs, forward_kinematics(arcs, spec), spec)
 
 
 def _in_passes(program, arcs: np.ndarray, row: tuple[int, ...], *args) -> np.ndarray:

@@ -31,7 +31,7 @@ import jax
 import jax.numpy as jnp
 
 from ncedf.broad_phase import BroadPhase, rollout_min_distances
-from ncedf.convex import Polytopes, robot_clearance
+from ncedf.obstacle_model import model_clearance
 from ncedf.robot import RobotSpec, forward_kinematics
 from ncedf.validate import check_fields
 
@@ -58,12 +58,11 @@ class SafetyFilter:
 
 
 def step_clearance(dt: float, substeps: int, broad: BroadPhase | None, shape, arc: jnp.ndarray,
-                   actions: jnp.ndarray, points, mask, polytopes: Polytopes | None = None,
-                   shared: bool = False) -> jnp.ndarray:
+                   actions: jnp.ndarray, points, mask, model=None, shared: bool = False) -> jnp.ndarray:
     """Predicted clearance over one step for each action: min over the states
     ``arc + (s / S) u dt``, s = 1..S (``substeps``), of the representation's min distance to the
     cloud (broad phase, or brute force where ``broad`` is None) and of the clearance to the
-    polytopes if given (each moved to the substep's time).
+    fitted obstacle model if given (polytopes moved to the substep's time, or a grid).
 
     Args:
       arc: (M, 3) m.  actions: (C, M, 3) m/s.  points: (P, 3) m; mask: (P,) bool.
@@ -71,7 +70,7 @@ def step_clearance(dt: float, substeps: int, broad: BroadPhase | None, shape, ar
         candidates, which can move apart); True = for all actions at once (many actions from
         one state, as for the rollouts).
     Returns:
-      (C,) m (+inf for an empty cloud and no polytopes).
+      (C,) m (+inf for an empty cloud and no model).
     """
     frac = jnp.arange(1, substeps + 1, dtype=arc.dtype) / substeps
     states = arc + dt * frac[None, :, None, None] * actions[:, None]  # (C, S, M, 3)
@@ -80,9 +79,9 @@ def step_clearance(dt: float, substeps: int, broad: BroadPhase | None, shape, ar
     else:
         one = lambda s: jnp.min(rollout_min_distances(broad, shape, s[None], points, mask))  # noqa: E731
         clearance = jax.vmap(one)(states)
-    if polytopes is not None:
+    if model is not None:
         frames = forward_kinematics(states, shape.spec)
-        ahead = robot_clearance(states, frames, shape.spec, polytopes, dt * frac)  # (C, S)
+        ahead = model_clearance(model, states, frames, shape.spec, dt * frac)  # (C, S)
         clearance = jnp.minimum(clearance, jnp.min(ahead, axis=1))
     return clearance
 

@@ -1,9 +1,9 @@
 """A slot between two slabs: reach into it, the goal 1.5 m deep (a confined-space world).
 
-Two horizontal slabs x in [3, 6] m, y in [-3, 3], 0.2 m thick, with a gap of ``GAP`` m between
-them centred at z ~ U(2.5, 4); the goal is in the gap's middle plane 1.5 m in, at y ~ U(-1, 1)
-(both drawn from ``env_seed``). One closed mesh (two slabs, ``scenarios.solids``), observed at
-``DENSITY`` points per square metre.
+Two horizontal slabs x in [3, 6] m, y in [-3, 3], 0.2 m thick, with a gap of ``GAP`` m between them
+centred at z ~ U(2.5, 4); the goal is in the gap's middle plane 1.5 m in, at y ~ U(-1, 1) (both
+drawn from ``env_seed``). One closed mesh (two slabs, ``scenarios.solids``), observed at ``DENSITY``
+points per square metre.
 
     python -m scenarios.slot --links 5 --env-seed 3
 """
@@ -22,7 +22,7 @@ SLAB_Y = (-3.0, 3.0)
 GAP, THICKNESS = 1.0, 0.2
 PLACE_RANGES = ((2.5, 4.0), (-1.0, 1.0))  # gap centre z, goal y
 DEPTH = 1.5
-DENSITY = 4.0
+DENSITY = 16.0  # see the module docstring
 TOLERANCE = 0.3
 MAX_STEPS = 300
 

@@ -6,7 +6,7 @@ import jax
 
 from ncedf import broad_phase, convex, safety
 
-#: (dt, substeps, broad, shape, arc, actions, points, mask, polytopes=None, shared=False)
+#: (dt, substeps, broad, shape, arc, actions, points, mask, model=None, shared=False)
 step_clearance = jax.jit(safety.step_clearance, static_argnums=(0, 1, 2), static_argnames="shared")
 #: (broad, shape, arcs, points, mask, frames=None)
 rollout_min_distances = jax.jit(broad_phase.rollout_min_distances, static_argnums=0)

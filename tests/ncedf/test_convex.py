@@ -309,7 +309,7 @@ def test_safety_check_sees_the_slab_between_its_corners():
     corners_only = float(step_clearance(CORE.dt, 4, None, shape, jnp.asarray(ARC), actions, points, mask)[0])
     assert corners_only > CORE.safety_margin  # the points alone let the crossing through
     closed = float(step_clearance(CORE.dt, 4, None, shape, jnp.asarray(ARC), actions, points, mask,
-                                  polytopes=fit_polytopes(SLAB, CONFIG.model.link))[0])
+                                  model=fit_polytopes(SLAB, CONFIG.model.link))[0])
     assert closed < 0.0
 
     nominal = jnp.broadcast_to(jnp.asarray(CROSSING), (CORE.horizon, 1, 3))
@@ -319,7 +319,7 @@ def test_safety_check_sees_the_slab_between_its_corners():
                                 fit_polytopes(SLAB, CONFIG.model.link))
     assert int(info.action_choice) != 0
     assert float(step_clearance(CORE.dt, 4, None, shape, jnp.asarray(ARC), action[None], points, mask,
-                                polytopes=fit_polytopes(SLAB, 1.0))[0]) >= CORE.safety_margin
+                                model=fit_polytopes(SLAB, 1.0))[0]) >= CORE.safety_margin
     unmodelled, _, _ = mppi_step(SPEC, dataclasses.replace(CONFIG, model=None, safety=None), shape, state,
                                  jnp.asarray(ARC), goal, points, mask)
     np.testing.assert_allclose(unmodelled, CROSSING, atol=1e-4)  # the cloud alone lets the crossing through

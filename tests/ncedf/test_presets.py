@@ -8,6 +8,9 @@ import numpy as np
 import pytest
 
 from ncedf.controller import config_from_dict, config_to_dict
+from ncedf.grid_model import GridModel
+from ncedf.guide import Guide
+from ncedf.obstacle_model import ConvexModel
 from ncedf.presets import PRESETS, Observation, observe, ours, preset
 from ncedf.robot import RobotSpec
 from solids import ported_wall, solid_wall
@@ -75,14 +78,23 @@ def test_an_observation_takes_numpy_counts():
 
 def test_observe_tells_a_cloud_with_a_concave_still_cluster():
     """Two observations of a ported wall and of a solid one (points still): the ported one is not convex,
-    and ours then keeps no obstacle model, route or lower collision weights."""
+    and ours then closes it on a grid, guides the goal cost through its free space and plans routes round
+    the grid; the solid one gets the convex model."""
     ported, solid = ported_wall(spacing=(0.125, 0.5, 0.5)), solid_wall(spacing=(0.125, 0.5, 0.5))
     assert not observe(ported, ported).convex and observe(solid, solid).convex
+    assert observe(ported, ported).gap > 0
     spec = RobotSpec(4)
     concave, convex = ours(spec, observe(ported, ported)), ours(spec, observe(solid, solid))
-    assert concave.model is None and concave.recovery is None and convex.model is not None
-    assert concave.mppi.w_coll > convex.mppi.w_coll
+    assert isinstance(concave.model, GridModel) and isinstance(concave.guide, Guide) and concave.recovery
+    assert isinstance(convex.model, ConvexModel) and convex.guide is None
     # The same points moving (a ported obstacle passing by) are closed whole: nothing is left out.
     assert observe(ported, ported + np.float32([0.0, 0.1, 0.0])).convex
     with pytest.raises(ValueError, match="same rows"):
         observe(ported, solid)
+
+
+def test_a_recorded_convex_model_without_its_kind_is_read_as_one():
+    """Recordings made while the convex model was the only obstacle model name no kind for it."""
+    meta = config_to_dict(preset("ours", RobotSpec(4), Observation(500)))
+    assert meta["model"].pop("type") == "ConvexModel"
+    assert config_from_dict(meta) == preset("ours", RobotSpec(4), Observation(500))

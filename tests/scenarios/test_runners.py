@@ -4,11 +4,13 @@ import dataclasses
 import os
 import signal
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from ncedf.geometry import robot_mesh_arrays
+from ncedf.grid_model import GridModel, goal_open
 from ncedf.presets import POINT_BUCKET, Observation, observe, point_capacity, preset
 from ncedf.robot import RobotSpec, end_effector_pose
 from recorder import inspect as recorder_inspect
@@ -232,7 +234,8 @@ def _model_after_two_observations(settings: EpisodeSettings):
         return None, scene
     dt = scene.config.mppi.dt
     before, now = (controller.pad_points(scene.observer.observe(t)) for t in (0.0, dt))
-    return scene.config.model.fit(*now, *before, dt), scene
+    state = controller.init(jax.random.PRNGKey(0))._replace(previous=before[0], previous_mask=before[1])
+    return controller.fit_model(state, *now, controller.check_goal(scene.goal))[0], scene
 
 
 def test_ours_models_what_it_observes_whatever_the_world(tmp_path):
@@ -247,11 +250,15 @@ def test_ours_models_what_it_observes_whatever_the_world(tmp_path):
     assert int(np.sum(static)) == 1 and int(box.left_out) == 0
     np.testing.assert_allclose(box.lower[static][0], [2.5, -1.5, 2.0], atol=0.05)
     np.testing.assert_allclose(box.upper[static][0], [3.5, 1.5, 4.0], atol=0.05)
-    # The charging wall with its port is not convex: the model would close the port, so ours keeps none.
-    scene = Episode(EpisodeSettings("charging", 4, 0, shape="exact")).scene
+    # The charging wall with its port is not convex: the convex model would close the port, so ours
+    # closes the wall on a grid that keeps a way to the port open: the robot's radius of room from the
+    # port's centre out to the grid's border.
+    grid, scene = _model_after_two_observations(EpisodeSettings("charging", 4, 0, shape="exact"))
     dt = scene.config.mppi.dt
     seen = observe(scene.observer.observe(0.0), scene.observer.observe(dt), dt)
-    assert not seen.convex and scene.config.model is None and scene.config.recovery is None
+    assert not seen.convex and isinstance(scene.config.model, GridModel)
+    cell = tuple(np.rint((scene.goal[:3, 3] - grid.origin) / grid.spacing).astype(int))
+    assert goal_open(np.asarray(grid.values), cell, scene.spec.radius)
     # Balls observed by their centres: no model, the racing stages.
     balls, scene = _model_after_two_observations(EpisodeSettings("spheres", 4, 0, shape="exact"))
     assert balls is None and scene.config.safety.sweep_first

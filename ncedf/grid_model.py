@@ -1,0 +1,186 @@
+"""The grid model: the static cloud's surfaces closed on a voxel grid, and their distance field.
+
+The convex model (``ncedf.obstacle_model``) closes a sparsely sampled surface by
+its cluster's hull, which closes a wall's window too. The grid model closes it
+without assuming convexity:
+
+* cells: a grid of spacing ``h`` over the static points, the goal and the robot's
+  base (the world origin), grown by ``pad``; ``h`` is ``resolution``, coarsened
+  where the box would hold more than ``max_cells``;
+* closed cells: the cells that hold a point, grown by a radius ``reach`` and
+  shrunk again by ``sqrt(reach^2 - gap^2)`` (every cell within ``reach`` of a
+  hit cell, less those within the shrink of a cell that is not). Over a hole of
+  radius ``gap`` in a sampled surface the grown balls still stand
+  ``sqrt(reach^2 - gap^2)`` high, so the hole stays closed, while an opening's
+  edges move in by only ``reach - sqrt(reach^2 - gap^2)`` (a cavity or passage
+  narrower than ``2 reach`` fills, though). Free cells that do not connect to
+  the grid's border are enclosed by the closed surface, inside a solid, and are
+  closed too;
+* the field: the signed distance of each cell centre to the closed cells'
+  centres (negative inside: minus the distance to the nearest free cell).
+
+Distance of a point x (:func:`grid_distance`): ``f(c) - |x - c| - h sqrt(3) / 2``
+with c the cell nearest to x clamped into the grid. Proof that it is at most
+the distance d(x) from x to the observed points (the closed set holds every hit
+cell): a point p lies within ``h sqrt(3) / 2`` of its cell's centre, so
+``f(c) <= |c - p| + h sqrt(3) / 2`` for the p nearest x, and
+``|c - p| <= |x - p| + |x - c|`` (the triangle inequality). The robot's clearance (:func:`grid_clearance`) is that at the centres
+of the balls that cover each link (``ncedf.convex.COVER_SPHERES``), less their radii.
+
+The fit runs in numpy and scipy outside the jitted step, once per static cloud
+and goal (cached), like the convex model's.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from scipy import ndimage
+
+from ncedf.convex import COVER_SPHERES, static_rows
+from ncedf.robot import RobotSpec
+from ncedf.shapes import SphereShape
+from ncedf.validate import check_fields
+
+#: Static clouds (with their goals) whose grids are kept.
+GRID_CACHE = 4
+#: The field's value without static obstacles, m (finite: the interpolation weighs it by zero).
+FAR = 1e6
+#: The reach at first, in gaps.
+REACH = 2.0
+#: The factor the reach shrinks by while it shuts the goal in.
+SHRINK = 0.9
+
+
+class Grid(NamedTuple):
+    """A field on a grid (a pytree): ``values`` (X, Y, Z) at the cell centres ``origin + h * index``,
+    m; ``spacing`` h, m (a scalar array)."""
+
+    origin: jnp.ndarray
+    spacing: jnp.ndarray
+    values: jnp.ndarray
+
+
+@dataclasses.dataclass(frozen=True)
+class GridModel:
+    """The grid model (module docstring): holes of radius ``gap`` m closed, cells of
+    ``resolution`` m (at most ``max_cells``) over the cloud, goal and base grown by ``pad`` m.
+
+    The reach starts at ``REACH * gap``; where that shuts the goal in (no cell with a field of
+    at least ``keep_open`` m leads from the goal's cell to the grid's border) it shrinks by
+    ``SHRINK`` until one does, down to a cell (below ``gap`` the cells are grown only, and the
+    widest holes stay): the passage to the goal is narrower than the reach fills.
+    """
+
+    gap: float
+    keep_open: float
+    resolution: float = 0.1
+    max_cells: int = 2_000_000
+    pad: float = 1.5
+
+    def __post_init__(self):
+        check_fields(self, positive=("gap", "keep_open", "resolution", "pad"), integers=("max_cells",))
+
+    def fit(self, points: np.ndarray, mask: np.ndarray, previous: np.ndarray, previous_mask: np.ndarray,
+            goal: np.ndarray) -> Grid:
+        """The grid of the rows of the padded cloud (P, 3) with mask (P,) that did not move since
+        the previous observation (P, 3), (P,) (none at first), around the goal position (3,) m."""
+        static = np.asarray(points)[static_rows(np.asarray(points), np.asarray(mask), np.asarray(previous),
+                                                np.asarray(previous_mask))]
+        anchors = np.stack([np.zeros(3), np.asarray(goal, np.float64)])
+        return _fit(np.ascontiguousarray(static, np.float64).tobytes(), anchors.tobytes(), self)
+
+
+def grid_box(points: np.ndarray, anchors: np.ndarray, model: GridModel) -> tuple[np.ndarray, float, tuple]:
+    """The grid's origin (3,), spacing and shape (3 ints) for the points and anchors (N, 3)."""
+    both = np.concatenate([points, anchors])
+    lower = both.min(axis=0) - model.pad - REACH * model.gap
+    extent = both.max(axis=0) + model.pad + REACH * model.gap - lower
+    h = max(model.resolution, float(np.prod(extent) / model.max_cells) ** (1.0 / 3.0))
+    return lower, h, tuple(int(n) for n in np.ceil(extent / h).astype(int) + 1)
+
+
+def closed_cells(hit: np.ndarray, h: float, reach: float, gap: float) -> np.ndarray:
+    """(X, Y, Z) bool: the hit cells grown by ``reach`` m and shrunk by ``sqrt(reach^2 - gap^2)``
+    (module docstring), enclosed free space filled."""
+    grown = ndimage.distance_transform_edt(~hit, sampling=h) <= reach
+    shrink = np.sqrt(max(reach**2 - gap**2, 0.0))
+    closed = hit | (ndimage.distance_transform_edt(grown, sampling=h) > shrink)
+    labels, _ = ndimage.label(~closed)
+    border = np.concatenate([labels[[0, -1]].ravel(), labels[:, [0, -1]].ravel(), labels[:, :, [0, -1]].ravel()])
+    return closed | ~np.isin(labels, border[border > 0])
+
+
+def signed_field(closed: np.ndarray, h: float) -> np.ndarray:
+    """(X, Y, Z) float32: each centre's distance to the closed centres, minus the distance to the
+    free ones inside, m (the whole grid closed: minus the grid's diagonal)."""
+    if closed.all():
+        return np.full(closed.shape, -h * float(np.linalg.norm(closed.shape)), np.float32)
+    outside = ndimage.distance_transform_edt(~closed, sampling=h)
+    inside = ndimage.distance_transform_edt(closed, sampling=h)
+    return np.where(closed, -inside, outside).astype(np.float32)
+
+
+def goal_open(field: np.ndarray, cell: tuple, room: float) -> bool:
+    """Whether cells with a field of at least ``room`` m lead from ``cell`` to the grid's border."""
+    labels, _ = ndimage.label(field >= room)
+    border = np.concatenate([labels[[0, -1]].ravel(), labels[:, [0, -1]].ravel(), labels[:, :, [0, -1]].ravel()])
+    return bool(labels[cell]) and bool(np.isin(labels[cell], border))
+
+
+@functools.lru_cache(maxsize=GRID_CACHE)
+def _fit(data: bytes, anchors: bytes, model: GridModel) -> Grid:
+    points = np.frombuffer(data, np.float64).reshape(-1, 3)
+    anchors = np.frombuffer(anchors, np.float64).reshape(-1, 3)
+    origin, h, shape = grid_box(points, anchors, model)
+    if len(points) == 0:  # no static obstacle: far everywhere
+        return Grid(origin.astype(np.float32), np.float32(h), np.full((2, 2, 2), FAR, np.float32))
+    hit = np.zeros(shape, bool)
+    hit[tuple(np.rint((points - origin) / h).astype(int).T)] = True
+    goal = tuple(np.clip(np.rint((anchors[-1] - origin) / h).astype(int), 0, np.asarray(shape) - 1))
+    reach = REACH * model.gap
+    field = signed_field(closed_cells(hit, h, reach, model.gap), h)
+    while reach > h and not goal_open(field, goal, model.keep_open):
+        reach *= SHRINK
+        field = signed_field(closed_cells(hit, h, reach, model.gap), h)
+    return Grid(origin.astype(np.float32), np.float32(h), field)
+
+
+def corners(grid: Grid, x: jnp.ndarray) -> tuple[jnp.ndarray, jnp.ndarray]:
+    """The eight cells around each point x (..., 3) clamped into the grid: their values (..., 8)
+    and trilinear weights (..., 8)."""
+    size = jnp.asarray(grid.values.shape)
+    u = jnp.clip((x - grid.origin) / grid.spacing, 0.0, size - 1.0)
+    low = jnp.clip(jnp.floor(u), 0, size - 2).astype(jnp.int32)
+    frac = u - low
+    bits = jnp.asarray([[i >> 2 & 1, i >> 1 & 1, i & 1] for i in range(8)], jnp.int32)  # (8, 3)
+    index = low[..., None, :] + bits
+    weights = jnp.prod(jnp.where(bits == 1, frac[..., None, :], 1.0 - frac[..., None, :]), axis=-1)
+    return grid.values[index[..., 0], index[..., 1], index[..., 2]], weights
+
+
+def grid_distance(grid: Grid, x: jnp.ndarray) -> jnp.ndarray:
+    """(...,) lower bound of the distance from points x (..., 3) to the observed static points, m
+    (module docstring; negative inside the closed surfaces)."""
+    size = jnp.asarray(grid.values.shape)
+    cell = jnp.clip(jnp.rint((x - grid.origin) / grid.spacing), 0, size - 1).astype(jnp.int32)
+    centre = grid.origin + grid.spacing * cell.astype(x.dtype)
+    reach = jnp.sqrt(jnp.sum((x - centre) ** 2, axis=-1))
+    return grid.values[cell[..., 0], cell[..., 1], cell[..., 2]] - reach - grid.spacing * np.sqrt(3.0) / 2.0
+
+
+def grid_clearance(arcs: jnp.ndarray, frames: jnp.ndarray, spec: RobotSpec, grid: Grid) -> jnp.ndarray:
+    """(B...,) lower bound of the clearance of the bodies (arcs (B..., M, 3), their frames
+    (B..., M + 1, 4, 4)) to the static points, m: the least over the cover balls."""
+    cover = SphereShape(spec, per_link=COVER_SPHERES)
+    batch = arcs.shape[:-2]
+    flat_arcs, flat_frames = arcs.reshape((-1,) + arcs.shape[-2:]), frames.reshape((-1,) + frames.shape[-3:])
+    geom = jax.vmap(cover.prepare)(flat_arcs, flat_frames)
+    d = grid_distance(grid, geom.centres) - geom.radius[..., None]  # (B, M, n)
+    return jnp.min(d, axis=(-2, -1)).reshape(batch)
+

@@ -1,0 +1,143 @@
+"""The grid model and the guide against independent truths: brute-force distances to the points,
+a sampled wall closed and its opening kept open, and path lengths round a wall in closed form."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from ncedf.controller import Controller, ControllerConfig
+from ncedf.grid_model import REACH, GridModel, grid_clearance, grid_distance
+from ncedf.guide import Guide, guided_distance
+from ncedf.presets import Observation, ours, sampling_gap
+from ncedf.robot import RobotSpec, forward_kinematics
+from ncedf.shapes import make_shape
+
+RNG = np.random.default_rng(7)  # the tests' other random draws
+
+
+def wall(density: float, window: float, size: float = 6.0, x: float = 3.0, seed: int = 0) -> np.ndarray:
+    """Points uniform at ``density`` per m^2 on the plane x = ``x`` over y, z in [-size/2, size/2]
+    less a square window of side ``window`` centred at y = z = 0 (its edges sampled too)."""
+    rng = np.random.default_rng(seed)
+    count = rng.poisson(density * size * size)
+    yz = rng.uniform(-size / 2, size / 2, (count, 2))
+    yz = yz[np.max(np.abs(yz), axis=1) > window / 2]
+    return np.column_stack([np.full(len(yz), x), yz]).astype(np.float32)
+
+
+def fit(points: np.ndarray, goal, gap: float, keep_open: float = 0.2):
+    mask = np.ones(len(points), bool)
+    return GridModel(gap, keep_open).fit(points, mask, points, mask, np.asarray(goal, np.float64))
+
+
+def test_the_grid_distance_is_a_lower_bound_of_the_distance_to_the_points():
+    points = RNG.uniform(-2.0, 2.0, (300, 3)).astype(np.float32)
+    grid = fit(points, (0.0, 0.0, 3.0), gap=0.3)
+    queries = RNG.uniform(-4.0, 4.0, (4000, 3)).astype(np.float32)
+    truth = np.min(np.linalg.norm(queries[:, None] - points[None], axis=-1), axis=1)
+    bound = np.asarray(grid_distance(grid, jnp.asarray(queries)))
+    assert np.all(bound <= truth + 1e-5)
+    # Outside the cloud's box by more than the reach (REACH gaps) no closed cell is farther from a
+    # point than the reach: there the bound is within it and two half cell diagonals.
+    outside = np.max(np.abs(queries), axis=1) > 2.0 + REACH * 0.3
+    assert np.all(truth[outside] - bound[outside] <= REACH * 0.3 + float(grid.spacing) * np.sqrt(3.0) + 1e-5)
+
+
+def test_a_wall_sampled_at_the_papers_density_is_closed_and_its_opening_kept():
+    """4 points per m^2 with a 2.4 m window: every point of the wall away from the window and the
+    border is closed (a ball of the robot's radius there meets the model), the window's centre has
+    room for the robot (0.2 m) and a margin."""
+    points = wall(4.0, 2.4)
+    gap = sampling_gap(points)
+    assert 0.3 < gap < 0.8
+    grid = fit(points, (4.0, 0.0, 0.0), gap)
+    yz = np.stack(np.meshgrid(np.linspace(-2.3, 2.3, 24), np.linspace(-2.3, 2.3, 24)), -1).reshape(-1, 2)
+    solid = yz[np.max(np.abs(yz), axis=1) > 1.2 + 0.5]
+    on_wall = jnp.asarray(np.column_stack([np.full(len(solid), 3.0), solid]), jnp.float32)
+    assert np.all(np.asarray(grid_distance(grid, on_wall)) < 0.2)
+    assert float(grid_distance(grid, jnp.asarray([3.0, 0.0, 0.0]))) > 0.2 + 0.1
+
+
+def test_the_points_alone_leave_the_robot_room_in_the_wall_that_the_model_closes():
+    """The reason for the model: somewhere on the sampled wall the nearest point is farther than the
+    robot's radius, while the model closes it."""
+    points = wall(4.0, 2.4)
+    grid = fit(points, (4.0, 0.0, 0.0), sampling_gap(points))
+    yz = np.stack(np.meshgrid(np.linspace(-2.3, 2.3, 47), np.linspace(-2.3, 2.3, 47)), -1).reshape(-1, 2)
+    yz = yz[np.max(np.abs(yz), axis=1) > 1.2 + 0.5]
+    probes = np.column_stack([np.full(len(yz), 3.0), yz]).astype(np.float32)
+    nearest = np.min(np.linalg.norm(probes[:, None] - points[None], axis=-1), axis=1)
+    assert nearest.max() > 0.2
+    assert np.all(np.asarray(grid_distance(grid, jnp.asarray(probes))) < 0.2)
+
+
+def test_the_guide_measures_the_way_round_a_wall_through_its_window():
+    """A solid wall (dense points) with a window at y in [2, 3.2]: from in front of the wall at
+    y = 0 to the goal behind it, the guided distance is the path through the window (closed
+    form: two straight legs), not the straight line, within the grid's metric error."""
+    count = 40000
+    yz = RNG.uniform(-4.0, 4.0, (count, 2))
+    yz = yz[~((yz[:, 0] > 2.0) & (yz[:, 0] < 3.2) & (np.abs(yz[:, 1]) < 0.6))]
+    points = np.column_stack([np.full(len(yz), 3.0), yz]).astype(np.float32)
+    goal, start = np.array([4.0, 0.0, 0.0]), np.array([2.0, 0.0, 0.0])
+    grid = fit(points, goal, gap=0.1)
+    field = Guide(0.2).fit(grid, goal)
+    hole = np.array([3.0, 2.6, 0.0])
+    legs = np.linalg.norm(start - hole) + np.linalg.norm(hole - goal)
+    guided = float(guided_distance(field, jnp.asarray(start, jnp.float32)))
+    assert legs * 0.95 < guided < legs * 1.15
+    assert guided > 1.5 * np.linalg.norm(goal - start)
+    assert float(guided_distance(field, jnp.asarray(goal, jnp.float32))) < 3 * float(field.spacing)
+
+
+def test_the_clearance_of_a_robot_is_at_most_its_exact_clearance_to_the_points():
+    spec = RobotSpec(2)
+    points = wall(16.0, 1.0, x=1.5)
+    grid = fit(points, (2.0, 0.0, 2.0), sampling_gap(points))
+    arcs = np.asarray(jax.random.uniform(jax.random.PRNGKey(0), (64, 2, 3), minval=1.7, maxval=2.3), np.float32)
+    frames = forward_kinematics(jnp.asarray(arcs), spec)
+    bound = np.asarray(grid_clearance(jnp.asarray(arcs), frames, spec, grid))
+    exact = make_shape("exact", spec)
+    truth = np.array([float(exact.min_distance(jnp.asarray(points), jnp.asarray(a), jnp.ones(len(points), bool)))
+                      for a in arcs])
+    assert np.all(bound <= truth + 1e-4)
+
+
+def test_ours_steps_with_the_grid_model_and_the_guide():
+    spec = RobotSpec(3)
+    points = wall(4.0, 1.6)
+    config = ours(spec, Observation(len(points), convex=False, gap=sampling_gap(points)))
+    config = ControllerConfig(**{**vars(config), "mppi": config.mppi.__class__(
+        **{**vars(config.mppi), "samples": 64, "horizon": 5})})
+    controller = Controller(spec, make_shape("spheres", spec), config)
+    state = controller.init(jax.random.PRNGKey(0))
+    arc = np.asarray(spec.straight_state(), np.float32)
+    for _ in range(2):  # the second step sees the points still: the grid closes them
+        action, state, info = controller.step(state, arc, np.array([4.0, 0.0, 1.0], np.float32), points)
+    assert action.shape == (3, 3) and np.all(np.isfinite(np.asarray(action)))
+    assert np.isfinite(float(info.predicted_min_distance))
+
+
+def test_a_guide_needs_the_grid_model():
+    with pytest.raises(ValueError, match="GridModel"):
+        ControllerConfig(guide=Guide(0.2))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_an_opening_of_the_robots_diameter_and_a_margin_stays_open_in_a_closed_wall(seed):
+    """16 points per m^2 (the confined worlds' density) on a wall with a 1 m window (the robot's
+    0.4 m diameter and 0.3 m each side): the wall is closed, the window has room for the robot's
+    radius, and the guided distance from 1 m in front to 1 m behind is the straight 2 m through it
+    (round the 6 m wide wall would be over 6 m)."""
+    points = wall(16.0, 1.0, seed=seed)
+    goal, start = np.array([4.0, 0.0, 0.0]), np.array([2.0, 0.0, 0.0])
+    grid = fit(points, goal, sampling_gap(points))
+    yz = np.stack(np.meshgrid(np.linspace(-2.3, 2.3, 24), np.linspace(-2.3, 2.3, 24)), -1).reshape(-1, 2)
+    solid = yz[np.max(np.abs(yz), axis=1) > 0.5 + 0.5]
+    on_wall = jnp.asarray(np.column_stack([np.full(len(solid), 3.0), solid]), jnp.float32)
+    assert np.all(np.asarray(grid_distance(grid, on_wall)) < 0.2)
+    centre = tuple(np.rint((np.array([3.0, 0.0, 0.0]) - grid.origin) / grid.spacing).astype(int))
+    assert grid.values[centre] >= 0.2
+    field = Guide(0.2).fit(grid, goal)
+    assert 2.0 <= float(guided_distance(field, jnp.asarray(start, jnp.float32))) < 2.0 * 1.15
