@@ -4,7 +4,7 @@ A box of 0.1 m walls open towards the robot (-x): its cavity x in [3, 4.6] m, 1.
 high, centred at y ~ U(-1, 1) with its floor at z ~ U(2, 3.5) (drawn from ``env_seed``). The goal is
 in the cavity, 0.5 m before the back wall, halfway up. One closed mesh (five overlapping slabs,
 ``scenarios.solids``), observed at ``DENSITY`` points per square metre: at the paper's 4 the holes
-between samples (up to 1.4 m across) are as wide as the openings, which no model of the points can
+between samples (about 1.1 m across) are as wide as the openings, which no model of the points can
 tell apart.
 
     python -m scenarios.cabinet --links 5 --env-seed 3

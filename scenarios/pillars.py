@@ -3,7 +3,7 @@
 Nine upright cylinders of radius 0.25 m and 8 m height on a 3 x 3 grid (x in {2, 3, 4} m, y in
 {-1.5, 0, 1.5}), each moved by up to 0.3 m in x and y; the goal at x = 5, y ~ U(-1, 1), z ~ U(2, 4)
 (all drawn from ``env_seed``). One closed mesh (nine pillars, ``scenarios.solids``), observed at
-``DENSITY`` points per square metre: at the paper's 4 the holes between samples (up to 1.4 m across)
+``DENSITY`` points per square metre: at the paper's 4 the holes between samples (about 1.1 m across)
 are as wide as the openings, which no model of the points can tell apart.
 
     python -m scenarios.pillars --links 5 --env-seed 3

@@ -4,7 +4,7 @@ A straight pipe along +x from x = 3 to 6 m, inner radius ``INNER`` (room for the
 diameter and a margin), 0.1 m wall, its axis at y ~ U(-1, 1), z ~ U(2.5, 4) (drawn from
 ``env_seed``). The goal is on the axis 1 m inside. One closed mesh (an annular solid,
 ``scenarios.solids``), observed at ``DENSITY`` points per square metre: at the paper's 4 the holes
-between samples (up to 1.4 m across) are as wide as the openings, which no model of the points can
+between samples (about 1.1 m across) are as wide as the openings, which no model of the points can
 tell apart.
 
     python -m scenarios.pipe --links 5 --env-seed 3

@@ -4,7 +4,7 @@ The wall is a slab x in [3, 3.3] m, y in [-4, 4], z in [0, 14] (too tall for sev
 over), with a square window of ``WINDOW`` m whose centre y ~ U(-1, 1), z ~ U(3, 4.5) is drawn from
 ``env_seed``; the goal is 1 m behind the wall at the window's centre. The wall is one closed mesh
 (four overlapping slabs, ``scenarios.solids``), observed at ``DENSITY`` points per square metre: at
-the paper's 4 the holes between samples (up to 1.4 m across) are as wide as the openings, which no
+the paper's 4 the holes between samples (about 1.1 m across) are as wide as the openings, which no
 model of the points can tell apart.
 
     python -m scenarios.window --links 5 --env-seed 3

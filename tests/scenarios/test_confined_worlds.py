@@ -36,7 +36,7 @@ def test_each_world_varies_with_its_seed_and_leaves_room_at_the_goal(name):
     scene = build_scene(EpisodeSettings(scenario=name, links=4, seed=0, env_seed=1))
     np.testing.assert_allclose(scene.goal, goal)
     cloud = scene.observer.observe(0.0)
-    assert abs(len(cloud) - first.density * mesh.area) <= 1  # the paper's density
+    assert abs(len(cloud) - first.density * mesh.area) <= 1  # the runner's density
     assert np.all(mesh.index.distance(cloud)[0] < 1e-4)  # on the surface
 
 
