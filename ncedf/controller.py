@@ -205,12 +205,11 @@ class Controller:
         """:meth:`step` on validated inputs (``_inputs``)."""
         action, mppi, info = mppi_step(self.spec, self.config, self.shape, state.mppi, arc, goal, points, mask,
                                        model, guide)
-        polytopes = model
         route, c = state.route, self.config
         if c.recovery is not None and goal.shape == (3,):
-            action, route, mppi = supervise(c.recovery, self.spec, self.check_moves(arc, points, mask, polytopes),
+            action, route, mppi = supervise(c.recovery, self.spec, self.check_moves(arc, points, mask, model),
                                             c.mppi.safety_margin, c.mppi.control_bound, c.mppi.dt, route, mppi,
-                                            arc, goal, polytopes, action)
+                                            arc, goal, model, action)
         if not bool(jnp.all(jnp.isfinite(action))):
             raise FloatingPointError("MPPI produced a non-finite action; the inputs or the shape model are broken")
         return action, ControllerState(mppi, points, mask, route), info
@@ -221,13 +220,13 @@ class Controller:
         tip already is, and the check of a route's moves), which would otherwise compile mid-episode."""
         inputs = self._inputs(state, arc, goal, obstacle_points)
         jax.block_until_ready(self._advance(state, *inputs))
-        arc, goal, points, mask, polytopes, _ = inputs
+        arc, goal, points, mask, model, _ = inputs
         if self.config.recovery is None or goal.shape != (3,):
             return
         here = np.asarray(arc)
-        plan_route(self.spec, polytopes, here, tips(here[None], self.spec)[0], state.mppi.key,
+        plan_route(self.spec, model, here, tips(here[None], self.spec)[0], state.mppi.key,
                    self.config.recovery.route)
-        jax.block_until_ready(self.check_moves(arc, points, mask, polytopes)(jnp.zeros((2,) + arc.shape, jnp.float32)))
+        jax.block_until_ready(self.check_moves(arc, points, mask, model)(jnp.zeros((2,) + arc.shape, jnp.float32)))
 
 
 def config_to_dict(config: ControllerConfig) -> dict:

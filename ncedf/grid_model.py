@@ -24,8 +24,9 @@ with c the cell nearest to x clamped into the grid. Proof that it is at most
 the distance d(x) from x to the observed points (the closed set holds every hit
 cell): a point p lies within ``h sqrt(3) / 2`` of its cell's centre, so
 ``f(c) <= |c - p| + h sqrt(3) / 2`` for the p nearest x, and
-``|c - p| <= |x - p| + |x - c|`` (the triangle inequality). The robot's clearance (:func:`grid_clearance`) is that at the centres
-of the balls that cover each link (``ncedf.convex.COVER_SPHERES``), less their radii.
+``|c - p| <= |x - p| + |x - c|`` (the triangle inequality). The robot's clearance
+(:func:`grid_clearance`) is that at the centres of the balls that cover each link
+(``ncedf.convex.COVER_SPHERES``), less their radii.
 
 The fit runs in numpy and scipy outside the jitted step, once per static cloud
 and goal (cached), like the convex model's.
@@ -105,6 +106,12 @@ def grid_box(points: np.ndarray, anchors: np.ndarray, model: GridModel) -> tuple
     return lower, h, tuple(int(n) for n in np.ceil(extent / h).astype(int) + 1)
 
 
+def border_labels(labels: np.ndarray) -> np.ndarray:
+    """The labels (> 0) of ``ndimage.label``'s components that touch the grid's border."""
+    border = np.concatenate([labels[[0, -1]].ravel(), labels[:, [0, -1]].ravel(), labels[:, :, [0, -1]].ravel()])
+    return np.unique(border[border > 0])
+
+
 def closed_cells(hit: np.ndarray, h: float, reach: float, gap: float) -> np.ndarray:
     """(X, Y, Z) bool: the hit cells grown by ``reach`` m and shrunk by ``sqrt(reach^2 - gap^2)``
     (module docstring), enclosed free space filled."""
@@ -112,8 +119,7 @@ def closed_cells(hit: np.ndarray, h: float, reach: float, gap: float) -> np.ndar
     shrink = np.sqrt(max(reach**2 - gap**2, 0.0))
     closed = hit | (ndimage.distance_transform_edt(grown, sampling=h) > shrink)
     labels, _ = ndimage.label(~closed)
-    border = np.concatenate([labels[[0, -1]].ravel(), labels[:, [0, -1]].ravel(), labels[:, :, [0, -1]].ravel()])
-    return closed | ~np.isin(labels, border[border > 0])
+    return closed | ~np.isin(labels, border_labels(labels))
 
 
 def signed_field(closed: np.ndarray, h: float) -> np.ndarray:
@@ -129,8 +135,7 @@ def signed_field(closed: np.ndarray, h: float) -> np.ndarray:
 def goal_open(field: np.ndarray, cell: tuple, room: float) -> bool:
     """Whether cells with a field of at least ``room`` m lead from ``cell`` to the grid's border."""
     labels, _ = ndimage.label(field >= room)
-    border = np.concatenate([labels[[0, -1]].ravel(), labels[:, [0, -1]].ravel(), labels[:, :, [0, -1]].ravel()])
-    return bool(labels[cell]) and bool(np.isin(labels[cell], border))
+    return bool(np.isin(labels[cell], border_labels(labels)))
 
 
 @functools.lru_cache(maxsize=GRID_CACHE)

@@ -64,6 +64,18 @@ def model_clearance(fitted: Polytopes | Grid, arcs, frames, spec, t=0.0):
     return robot_clearance(arcs, frames, spec, fitted, t)
 
 
+def static_part(fitted: Polytopes | Grid) -> Polytopes | Grid:
+    """The fitted model less what moves: its moving polytopes left out (a grid holds still points only)."""
+    if isinstance(fitted, Grid):
+        return fitted
+    return fitted._replace(present=fitted.present & ~np.any(fitted.velocity != 0, axis=-1))
+
+
+def left_out(fitted: Polytopes | Grid) -> int:
+    """The still obstacles the fitted model misses: the convex model's clusters left out as not convex."""
+    return 0 if isinstance(fitted, Grid) else int(fitted.left_out)
+
+
 def cloud_velocity(points: np.ndarray, mask: np.ndarray, previous: np.ndarray, previous_mask: np.ndarray,
                    dt: float) -> np.ndarray:
     """(P, 3) m/s: each row's displacement since the previous cloud over dt; zero where either

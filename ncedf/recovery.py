@@ -26,8 +26,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ncedf.convex import Polytopes
 from ncedf.mppi import MPPIState
+from ncedf.obstacle_model import left_out, static_part
 from ncedf.robot import RobotSpec
 from ncedf.route import RouteConfig, plan_route
 from ncedf.validate import check_fields
@@ -81,13 +81,11 @@ def plan_due(recovery: RouteRecovery, route: RouteState, stalled: int) -> bool:
 
 
 def start_route(recovery: RouteRecovery, spec: RobotSpec, route: RouteState, mppi: MPPIState, arc, goal,
-                polytopes: Polytopes) -> tuple[RouteState, MPPIState]:
-    """Plan a route from ``arc`` (M, 3) to the position ``goal`` (3,) round the static polytopes (or
-    the grid model, which holds the static points alone)."""
-    static = polytopes
-    if isinstance(polytopes, Polytopes):
-        static = polytopes._replace(present=polytopes.present & ~np.any(polytopes.velocity != 0, axis=-1))
-    path = plan_route(spec, static, np.asarray(arc), np.asarray(goal), jax.random.fold_in(mppi.key, ROUTE_SALT),
+                model) -> tuple[RouteState, MPPIState]:
+    """Plan a route from ``arc`` (M, 3) to the position ``goal`` (3,) round the still part of the
+    fitted obstacle model (``ncedf.obstacle_model.static_part``)."""
+    path = plan_route(spec, static_part(model), np.asarray(arc), np.asarray(goal),
+                      jax.random.fold_in(mppi.key, ROUTE_SALT),
                       recovery.route)
     if path is None:  # the stall count goes on, and with it the stall escape
         return route._replace(routes=route.routes + 1), mppi
@@ -110,7 +108,7 @@ def route_move(route: RouteState, arc: np.ndarray, control_bound: float, dt: flo
 
 
 def supervise(recovery: RouteRecovery, spec: RobotSpec, check_moves, margin: float, control_bound: float,
-              dt: float, route: RouteState, mppi: MPPIState, arc, goal, polytopes: Polytopes, action):
+              dt: float, route: RouteState, mppi: MPPIState, arc, goal, model, action):
     """The action and states after MPPI's step (module docstring): a route's next move when one is
     followed or a plan is due, else MPPI's ``action``.
 
@@ -122,9 +120,9 @@ def supervise(recovery: RouteRecovery, spec: RobotSpec, check_moves, margin: flo
       (action (M, 3) m/s, RouteState, MPPIState).
     """
     if route.at >= len(route.states) - 1:
-        if not plan_due(recovery, route, int(mppi.stalled)) or int(getattr(polytopes, "left_out", 0)):
+        if not plan_due(recovery, route, int(mppi.stalled)) or left_out(model):
             return action, route, mppi  # no plan where the model misses an obstacle: the roadmap would not see it
-        route, mppi = start_route(recovery, spec, route, mppi, arc, goal, polytopes)
+        route, mppi = start_route(recovery, spec, route, mppi, arc, goal, model)
         if route.at >= len(route.states) - 1:
             return action, route, mppi
     u, reached = route_move(route, np.asarray(arc), control_bound, dt)
