@@ -19,7 +19,10 @@ dataclass of its own module:
 The jitted step (``ncedf.mppi.mppi_step``) runs the core with the stages that act
 inside it; :class:`Controller` validates the inputs, pads the cloud to the
 capacity, fits the obstacle model (numpy, outside the jitted step) and runs the
-recovery around the step. Presets that compose stages are in ``ncedf.presets``.
+recovery around the step. The configuration's lengths and speeds are in the
+reference units of ``ncedf.units``: the controller sees the robot, goal and cloud
+divided by the robot's unit and returns its rates and distances in metres.
+Presets that compose stages are in ``ncedf.presets``.
 
 :func:`config_to_dict` and :func:`config_from_dict` are a recording's metadata
 round trip; :func:`config_from_dict` also reads the flat settings that recordings
@@ -38,15 +41,16 @@ import numpy as np
 from ncedf.broad_phase import BroadPhase
 from ncedf.grid_model import GridModel
 from ncedf.guide import Guide
-from ncedf.mppi import MPPIConfig, MPPIState, init_state, mppi_step
+from ncedf.mppi import MPPIConfig, MPPIInfo, MPPIState, init_state, mppi_step
 from ncedf.obstacle_model import ConvexModel
 from ncedf.recovery import RouteRecovery, RouteState, no_route, supervise
 from ncedf.robot import RobotSpec, validate_state
 from ncedf.route import plan_route, tips
 from ncedf.safety import SafetyFilter, step_clearance
 from ncedf.sampling import Sampling
-from ncedf.shapes import Shape
+from ncedf.shapes import Shape, rescaled
 from ncedf.temperature import EffectiveSampleSize, Fixed, StallEscape
+from ncedf.units import to_reference, unit
 
 #: The stages' types by field (a tuple where a stage has several kinds; None allowed where listed).
 STAGES = {
@@ -117,13 +121,15 @@ class Controller:
         if shape.spec.n_links != spec.n_links:
             raise ValueError(f"the shape is for {shape.spec.n_links} links, the robot has {spec.n_links}")
         self.spec, self.shape, self.config = spec, shape, config
+        self.unit = unit(spec)
+        self.core_spec, self.core_shape = to_reference(spec), rescaled(shape, to_reference(spec))
         self._guided = (None, None, None)  # the last grid, goal and guide field
 
     def init(self, key) -> ControllerState:
         """Zero plan (paper: the initial reference is zero), the key, no observation yet, no route."""
         cap = self.config.mppi.max_points
-        return ControllerState(init_state(self.spec, self.config.mppi, key), np.zeros((cap, 3), np.float32),
-                               np.zeros(cap, bool), no_route(self.spec))
+        return ControllerState(init_state(self.core_spec, self.config.mppi, key), np.zeros((cap, 3), np.float32),
+                               np.zeros(cap, bool), no_route(self.core_spec))
 
     def pad_points(self, obstacle_points):
         """Validate an obstacle cloud (P, 3) and pad it to the capacity: (points, mask)."""
@@ -160,13 +166,14 @@ class Controller:
         expected = (self.config.mppi.horizon, self.spec.n_links, 3)
         if tuple(np.shape(state.mppi.nominal)) != expected:
             raise ValueError(f"the state's plan must have shape {expected}, got {np.shape(state.mppi.nominal)}")
-        arc = jnp.asarray(validate_state(arc, self.spec), jnp.float32)
+        arc = jnp.asarray(validate_state(arc, self.spec) / self.unit, jnp.float32)
         points, mask = self.pad_points(obstacle_points)
-        goal = self.check_goal(goal)
+        points, goal = points / np.float32(self.unit), to_units(self.check_goal(goal), self.unit)
         return (arc, goal, points, mask, *self.fit_model(state, points, mask, goal))
 
     def fit_model(self, state: ControllerState, points, mask, goal):
-        """The fitted obstacle model of the padded cloud and the guide's field (each None without one)."""
+        """The fitted obstacle model of the padded cloud and the guide's field (each None without one),
+        in reference units."""
         model, c = self.config.model, self.config
         if model is None:
             return None, None
@@ -181,10 +188,11 @@ class Controller:
         return grid, self._guided[2]
 
     def check_moves(self, arc, points, mask, model):
-        """``moves (C, M, 3) -> (C,)``: the safety filter's clearance of moves from ``arc`` over a step."""
+        """``moves (C, M, 3) -> (C,)``: the safety filter's clearance of moves from ``arc`` over a step
+        (reference units)."""
         substeps = (self.config.safety or SafetyFilter()).substeps
-        return lambda moves: _check_moves(self.config.mppi.dt, substeps, self.config.broad_phase, self.shape, arc,
-                                          moves, points, mask, model=model)
+        return lambda moves: _check_moves(self.config.mppi.dt, substeps, self.config.broad_phase, self.core_shape,
+                                          arc, moves, points, mask, model=model)
 
     def step(self, state: ControllerState, arc, goal, obstacle_points=None):
         """One control step with validated inputs.
@@ -194,7 +202,7 @@ class Controller:
           goal: position (3,) or pose (4, 4) in the world frame.
           obstacle_points: (P, 3) world points, P <= max_points; None or empty for no obstacles.
         Returns:
-          action (M, 3) m/s, the next :class:`ControllerState`, and an :class:`ncedf.mppi.MPPIInfo`.
+          action (M, 3) m/s, the next :class:`ControllerState`, and an :class:`ncedf.mppi.MPPIInfo` (m).
         Raises:
           ValueError (InvalidStateError for the state) naming the bad value;
           FloatingPointError if the computation produced a non-finite action.
@@ -203,15 +211,17 @@ class Controller:
 
     def _advance(self, state: ControllerState, arc, goal, points, mask, model, guide):
         """:meth:`step` on validated inputs (``_inputs``)."""
-        action, mppi, info = mppi_step(self.spec, self.config, self.shape, state.mppi, arc, goal, points, mask,
-                                       model, guide)
+        action, mppi, info = mppi_step(self.core_spec, self.config, self.core_shape, state.mppi, arc, goal, points,
+                                       mask, model, guide)
         route, c = state.route, self.config
         if c.recovery is not None and goal.shape == (3,):
-            action, route, mppi = supervise(c.recovery, self.spec, self.check_moves(arc, points, mask, model),
+            action, route, mppi = supervise(c.recovery, self.core_spec, self.check_moves(arc, points, mask, model),
                                             c.mppi.safety_margin, c.mppi.control_bound, c.mppi.dt, route, mppi,
                                             arc, goal, model, action)
         if not bool(jnp.all(jnp.isfinite(action))):
             raise FloatingPointError("MPPI produced a non-finite action; the inputs or the shape model are broken")
+        if self.unit != 1.0:
+            action, info = action * self.unit, info_to_metres(info, self.unit)
         return action, ControllerState(mppi, points, mask, route), info
 
     def warm_up(self, state: ControllerState, arc, goal, obstacle_points=None) -> None:
@@ -224,9 +234,26 @@ class Controller:
         if self.config.recovery is None or goal.shape != (3,):
             return
         here = np.asarray(arc)
-        plan_route(self.spec, model, here, tips(here[None], self.spec)[0], state.mppi.key,
+        plan_route(self.core_spec, model, here, tips(here[None], self.core_spec)[0], state.mppi.key,
                    self.config.recovery.route)
         jax.block_until_ready(self.check_moves(arc, points, mask, model)(jnp.zeros((2,) + arc.shape, jnp.float32)))
+
+
+def to_units(goal: jnp.ndarray, factor: float) -> jnp.ndarray:
+    """A position goal (3,) or a pose goal's translation (4, 4) divided by ``factor``."""
+    if factor == 1.0:
+        return goal
+    return goal / factor if goal.shape == (3,) else goal.at[:3, 3].divide(factor)
+
+
+#: The lengths among the :class:`ncedf.mppi.MPPIInfo` fields.
+INFO_LENGTHS = ("plan", "predicted_min_distance", "current_min_distance", "rollout_min_distance",
+                "action_clearance")
+
+
+def info_to_metres(info: MPPIInfo, factor: float) -> MPPIInfo:
+    """``info`` of the controller in reference units, its lengths multiplied by ``factor`` (m per unit)."""
+    return info._replace(**{name: getattr(info, name) * factor for name in INFO_LENGTHS})
 
 
 def config_to_dict(config: ControllerConfig) -> dict:

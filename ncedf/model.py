@@ -16,6 +16,11 @@ lies within the sagitta ``h`` of the chord (an arc of angle <= pi), so for a
 point outside the link ``chord - h - r <= distance <= chord + h``. The box is
 at least 0.85 m from the link, so beyond it no error can hide a collision.
 
+The network works in reference units (``ncedf.units``): a link of length L sees
+its points divided by ``L / 2 m`` and its distance is multiplied back, so the
+same recipe (box, noise, losses) trains a link of any size; for the paper's
+link the unit is 1.
+
 Weights are saved as flax msgpack bytes next to a JSON file of metadata
 (architecture, encoding, robot spec, training settings, dataset hash,
 validation metrics); ``load_model`` checks both.
@@ -43,6 +48,7 @@ from ncedf.robot import (
     link_transform,
     points_in_link_frames,
 )
+from ncedf.units import unit
 
 ENCODINGS = ("paper", "bending-plane")
 OUTPUTS = ("distance", "signed-abs")
@@ -190,7 +196,11 @@ class NCEDF:
         Returns:
           (P,) the network's distance, clamped to the chord bounds outside the domain, m.
         """
-        raw = self.apply(encode(points, theta, phi, self.config.encoding))
+        u = unit(self.spec)
+        if u == 1.0:
+            raw = self.apply(encode(points, theta, phi, self.config.encoding))
+        else:
+            raw = u * self.apply(encode(points / u, theta, phi, self.config.encoding))
         outside = jnp.any((points < jnp.asarray(self.domain[0])) | (points > jnp.asarray(self.domain[1])), axis=-1)
         lower, upper = chord_bounds_from_end(points, end, sagitta, self.spec.radius)
         return jnp.where(outside, jnp.clip(raw, lower, upper), raw)
@@ -208,6 +218,13 @@ class NCEDF:
     def robot_distance(self, points: jnp.ndarray, arc: jnp.ndarray) -> jnp.ndarray:
         """Predicted distance from world points to the robot, (P,), m (eq. 6)."""
         return jnp.min(self.robot_link_distances(points, arc), axis=0)
+
+    def rescaled(self, spec: RobotSpec) -> "NCEDF":
+        """The same network for ``spec``, the link scaled by ``spec.length / self.spec.length``: its
+        distances scale with the link (the network works in the link's units)."""
+        factor = spec.length / self.spec.length
+        domain = tuple(tuple(v * factor for v in corner) for corner in self.domain)
+        return dataclasses.replace(self, spec=RobotSpec(1, **spec.link_geometry()), domain=domain)
 
     @property
     def metadata(self) -> dict:

@@ -66,6 +66,12 @@ class RobotSpec:
                 f"need 0 < l_min < length < l_max, got l_min={self.l_min}, "
                 f"length={self.length}, l_max={self.l_max}"
             )
+        if self.radius * self.max_bend() >= self.length:
+            raise ValueError(
+                f"radius {self.radius} m is not below the bend radius {self.length / self.max_bend():.4g} m that "
+                f"the arc limits {self.l_min}-{self.l_max} allow a link of length {self.length} (the tube would "
+                "fold into itself); narrow the arc limits or the radius"
+            )
 
     def link_geometry(self) -> dict:
         """Every field but ``n_links``: what a single link's data, model or hash depends on."""
@@ -86,6 +92,13 @@ class RobotSpec:
             if all(-hi - tol <= v <= lo + tol for v in vertex)
         )
         return math.sqrt(2.0 * best / 3.0) / self.radius
+
+    def scaled(self, factor: float) -> "RobotSpec":
+        """The same robot with every length multiplied by ``factor`` (> 0), rounded to 12 digits so that
+        scaling there and back returns the same spec."""
+        if not factor > 0:
+            raise ValueError(f"scale factor must be > 0, got {factor}")
+        return dataclasses.replace(self, **{k: float(f"{v * factor:.12g}") for k, v in self.link_geometry().items()})
 
     def straight_state(self) -> jnp.ndarray:
         """The straight initial state: every arc length = L, shape (M, 3)."""

@@ -316,6 +316,13 @@ class PointCloudShape(_Base):
         return jnp.sqrt(jnp.min(_sq_dist(points[None], s), axis=-1))
 
 
+def rescaled(shape: Shape, spec: RobotSpec) -> Shape:
+    """``shape`` for ``spec``, the same robot scaled: every representation's distances scale with it."""
+    if isinstance(shape, NCEDFShape):
+        return dataclasses.replace(shape, spec=spec, model=shape.model.rescaled(spec))
+    return dataclasses.replace(shape, spec=spec)
+
+
 REPRESENTATIONS = ("ncedf", "spheres", "pointcloud:P", "exact")
 
 

@@ -22,6 +22,7 @@ import jax
 import numpy as np
 
 from ncedf.robot import RobotSpec, bending_vector
+from ncedf.units import to_reference, unit
 from scenarios.truth import check_state, true_distances_certified
 from scenarios.world import World
 
@@ -62,14 +63,33 @@ class Judgement:
     certificate: float = 0.0
 
 
+@functools.lru_cache(maxsize=4)
+def _reference_world(world: World, factor: float) -> World:
+    """``world.scaled(factor)``, kept: a scaled mesh builds its hierarchy once, not every step."""
+    return world.scaled(factor)
+
+
 def judge_step(world: World, spec: RobotSpec, arc0, arc1, t0: float, dt: float) -> Judgement:
     """Judge the motion from ``arc0`` (M, 3) at ``t0`` to ``arc1`` at ``t0 + dt``.
 
     The exact distance is checked at ``substeps + 1`` instants ``t0 + i dt / substeps``
     (arc lengths interpolated linearly; :func:`substep_count` with its 2 cm default).
     ``first_collision_time`` is the first checked instant with distance < 0, else None;
-    ``certificate`` how far above the truth any checked minimum may be (m).
+    ``certificate`` how far above the truth any checked minimum may be (m). The robot and the world
+    are judged in the robot's units (``ncedf.units``), so the 2 cm and the distances' certified
+    tolerances are of the paper's robot and scale with a robot of another size.
     """
+    u = unit(spec)
+    if u == 1.0:
+        return _judge(world, spec, arc0, arc1, t0, dt)
+    ref = _judge(_reference_world(world, 1.0 / u), to_reference(spec), np.asarray(arc0, np.float64) / u,
+                 np.asarray(arc1, np.float64) / u, t0, dt)
+    return dataclasses.replace(ref, min_distance=ref.min_distance * u, end_distance=ref.end_distance * u,
+                               certificate=ref.certificate * u)
+
+
+def _judge(world: World, spec: RobotSpec, arc0, arc1, t0: float, dt: float) -> Judgement:
+    """:func:`judge_step` as measured, in metres."""
     arc0, arc1 = check_state(arc0, spec), check_state(arc1, spec)
     n = substep_count(world, spec, arc0, arc1, dt)
     frac = np.arange(n + 1) / n

@@ -254,6 +254,21 @@ class World:
         if self.observe not in OBSERVE_MODES:
             raise WorldError(f"World.observe must be one of {OBSERVE_MODES}, got {self.observe!r}")
 
+    def scaled(self, factor: float) -> "World":
+        """The world scaled by ``factor`` (> 0) about the origin (the robot's base): every position,
+        size and speed times ``factor``, the density over its square, so the same points are observed."""
+        if factor == 1.0:
+            return self
+        scale = lambda v: tuple(factor * x for x in v)  # noqa: E731
+        return dataclasses.replace(
+            self,
+            spheres=tuple(dataclasses.replace(s, centre=scale(s.centre), radius=factor * s.radius,
+                                              velocity=scale(s.velocity)) for s in self.spheres),
+            boxes=tuple(Box(scale(b.centre), scale(b.size)) for b in self.boxes),
+            meshes=tuple(MeshObstacle(factor * m.vertices, m.faces, m.name) for m in self.meshes),
+            clouds=tuple(CloudObstacle(factor * np.asarray(c.points), c.name) for c in self.clouds),
+            density=self.density / factor**2)
+
     @property
     def margin_extra(self) -> float:
         """Radius the controller adds to its safety margin: the largest sphere radius when
