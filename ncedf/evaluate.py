@@ -19,9 +19,11 @@ import jax
 import numpy as np
 
 from ncedf.data import ValidationConfig, load_dataset
+from ncedf.metrics import NEAR_FIELD
 from ncedf.model import ModelError, load_model
 from ncedf.robot import RobotSpec, sample_arc_lengths
 from ncedf.train import evaluate_model
+from ncedf.units import unit
 
 ROWS = (
     ("overall", ("mae", "rmse", "moe", "over_p999", "max_error")),
@@ -47,7 +49,7 @@ def inference_ms(model, links: int = 4, points: int = 500, repeats: int = 200, s
     spec = RobotSpec(links, model.spec.length, model.spec.radius, model.spec.l_min, model.spec.l_max)
     k_arc, k_pts = jax.random.split(jax.random.PRNGKey(seed))
     arc = sample_arc_lengths(k_arc, spec, (links,))
-    pts = jax.random.uniform(k_pts, (points, 3), minval=-4.0, maxval=8.0)
+    pts = unit(spec) * jax.random.uniform(k_pts, (points, 3), minval=-4.0, maxval=8.0)
     return float(np.median(inference_times_ms(model, pts, arc, repeats)))
 
 
@@ -60,7 +62,8 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     try:
         model = load_model(args.model)
-        val_cfg = ValidationConfig(n_configs=args.configs, n_points=args.points, seed=args.seed)
+        val_cfg = ValidationConfig(n_configs=args.configs, n_points=args.points, seed=args.seed,
+                                   box_min=model.domain[0], box_max=model.domain[1])
     except (ModelError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -73,11 +76,14 @@ def main(argv=None) -> int:
                   f"encoding {cfg.encoding}, output {cfg.output}")
             val = load_dataset(val_cfg, model.spec)
             metrics = evaluate_model(model, val)
-            print(f"validation: {args.configs} configurations x {args.points} points (seed {args.seed}), "
-                  f"exact labels; near field = true distance < 0.5 m ({100 * metrics['near_fraction']:.1f}% of points)")
+            length = model.spec.length
+            print(f"link: L = {length:g} m, r = {model.spec.radius:g} m; validation: {args.configs} configurations x "
+                  f"{args.points} points (seed {args.seed}), exact labels; near field = true distance < "
+                  f"{NEAR_FIELD * unit(model.spec):g} m ({100 * metrics['near_fraction']:.1f}% of points)")
             print(f"{'':12s} {'MAE':>8s} {'RMSE':>8s} {'MOE':>8s} {'over p99.9':>11s} {'max err':>8s}   (m)")
             for name, keys in ROWS:
                 print(f"{name:12s} " + " ".join(f"{metrics[k]:{11 if 'p999' in k else 8}.4f}" for k in keys))
+            print(f"per link length: MAE / L = {metrics['mae'] / length:.5f}, MOE / L = {metrics['moe'] / length:.5f}")
             print(f"surface points: mean prediction {metrics['surface_mean']:+.4f} m, "
                   f"MAE {metrics['surface_mae']:.4f} m")
             print(f"inference: {inference_ms(model):.3f} ms for one 4-link configuration against 500 points "

@@ -3,7 +3,8 @@
 MOE, the paper's mean over-estimation error, is ``mean(max(0, pred - true))``.
 Beyond the paper: the 99.9th percentile of the over-estimation (the
 safety-relevant tail), the worst error, the same metrics in the near field
-(true distance below ``NEAR_FIELD`` m, where collisions are decided) and the
+(true distance below ``NEAR_FIELD`` m for the paper's 2 m link, in proportion for
+another, where collisions are decided) and the
 mean prediction on surface points (should be 0).
 """
 
@@ -27,18 +28,18 @@ def _errors(pred: np.ndarray, true: np.ndarray) -> dict:
     }
 
 
-def distance_metrics(pred, true, surface_pred=None) -> dict:
+def distance_metrics(pred, true, surface_pred=None, near_field: float = NEAR_FIELD) -> dict:
     """Metrics of predictions ``pred`` against labels ``true`` (same shape), m.
 
     Returns a flat dict: mae, rmse, moe, over_p999, max_error, the same with a
-    ``near_`` prefix for true < NEAR_FIELD, ``near_fraction`` and, when
+    ``near_`` prefix for true < ``near_field``, ``near_fraction`` and, when
     ``surface_pred`` (predictions on surface points) is given,
     ``surface_mean`` and ``surface_mae``.
     """
     pred = np.asarray(pred, dtype=np.float64).ravel()
     true = np.asarray(true, dtype=np.float64).ravel()
     out = _errors(pred, true)
-    near = true < NEAR_FIELD
+    near = true < near_field
     out["near_fraction"] = float(near.mean())
     if near.any():
         out.update({f"near_{k}": v for k, v in _errors(pred[near], true[near]).items()})

@@ -8,6 +8,11 @@ paper, the learning rate decays on a cosine schedule by default
 (``--schedule constant`` gives the paper's).
 
     python -m ncedf.train --layers 4 --width 16 --out runs/ncedf_4x16
+
+The link is the paper's unless ``--length --radius --arc-min --arc-max`` say
+otherwise; its training set is drawn in reference units (``ncedf.units``: the
+link scaled to 2 m, the box and noise of the paper's recipe) and validated on
+exact distances to the link itself. The metadata names the link.
 """
 
 from __future__ import annotations
@@ -30,6 +35,7 @@ from ncedf.data import BOX_MAX, BOX_MIN, DatasetConfig, LinkDataset, ValidationC
 from ncedf.metrics import NEAR_FIELD, distance_metrics
 from ncedf.model import ENCODINGS, MLP, NCEDF, OUTPUTS, ModelConfig, encode, init_params, save_model
 from ncedf.robot import RobotSpec
+from ncedf.units import to_reference, unit
 
 SCHEDULES = ("cosine", "constant")
 
@@ -178,9 +184,9 @@ def predict_dataset(model: NCEDF, data: LinkDataset) -> tuple[jnp.ndarray, jnp.n
 
 
 def evaluate_model(model: NCEDF, data: LinkDataset) -> dict:
-    """distance_metrics of ``model`` on a validation set."""
+    """distance_metrics of ``model`` on a validation set (its near field in proportion to the link)."""
     pred, surface = predict_dataset(model, data)
-    return distance_metrics(pred, data.distances, surface)
+    return distance_metrics(pred, data.distances, surface, NEAR_FIELD * unit(model.spec))
 
 
 def train(
@@ -265,6 +271,10 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--near", type=int, default=0, help="extra near-surface points per configuration")
     p.add_argument("--val-configs", type=int, default=100)
     p.add_argument("--val-points", type=int, default=4096)
+    p.add_argument("--length", type=float, default=2.0, help="link backbone length L, m (default 2, the paper's)")
+    p.add_argument("--radius", type=float, default=0.2, help="link radius r, m (default 0.2)")
+    p.add_argument("--arc-min", type=float, default=1.6, help="shortest chamber arc length, m (default 1.6)")
+    p.add_argument("--arc-max", type=float, default=2.4, help="longest chamber arc length, m (default 2.4)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", required=True, help="output stem: writes OUT.msgpack and OUT.json")
     p.add_argument("--record", metavar="STEM", help="also record the run (per-epoch /metrics) to STEM.rrd and STEM.mcap")
@@ -273,7 +283,10 @@ def parse_args(argv=None) -> argparse.Namespace:
 
 
 def _configs(args):
-    """The model, training, dataset and validation configs of the parsed arguments (ValueError names a bad one)."""
+    """The robot (one link), model, training, dataset and validation configs of the parsed arguments
+    (ValueError names a bad one). The training set is of the link in reference units, the validation
+    set of the link itself (``ncedf.units``)."""
+    spec = RobotSpec(1, args.length, args.radius, args.arc_min, args.arc_max)
     model_cfg = ModelConfig(args.layers, args.width, args.encoding, args.output)
     cfg = TrainConfig(
         epochs=args.epochs,
@@ -289,17 +302,19 @@ def _configs(args):
         n_configs=args.configs, grid=args.grid, n_surface=args.surface, n_near=args.near,
         labels=args.labels, seed=args.seed,
     )
-    return model_cfg, cfg, data_cfg, ValidationConfig(n_configs=args.val_configs, n_points=args.val_points)
+    u = unit(spec)
+    val_cfg = ValidationConfig(n_configs=args.val_configs, n_points=args.val_points,
+                               box_min=tuple(u * v for v in BOX_MIN), box_max=tuple(u * v for v in BOX_MAX))
+    return spec, model_cfg, cfg, data_cfg, val_cfg
 
 
 def main(argv=None) -> int:
     args = parse_args(argv)
     try:
-        model_cfg, cfg, data_cfg, val_cfg = _configs(args)
+        spec, model_cfg, cfg, data_cfg, val_cfg = _configs(args)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    spec = RobotSpec(n_links=1)
     problem = _output_problem(Path(args.out), args.overwrite)
     if problem:
         print(f"error: {problem}", file=sys.stderr)
@@ -325,10 +340,10 @@ def main(argv=None) -> int:
     try:
         with stop_on_signals(), recording as rec:
             start = time.perf_counter()
-            data = load_dataset(data_cfg, spec)
+            data = load_dataset(data_cfg, to_reference(spec))
             val = load_dataset(val_cfg, spec)
             data_seconds = time.perf_counter() - start
-            domain = (data_cfg.box_min, data_cfg.box_max)
+            domain = (val_cfg.box_min, val_cfg.box_max)
 
             def record(row):
                 if rec is not None:

@@ -127,3 +127,32 @@ def test_cli_trains_saves_a_loadable_model_and_records_the_run(tmp_path):
     # Neither the weights nor the recording are overwritten silently.
     assert main(argv) == 2
     assert main(argv + ["--record", str(tmp_path / "other")]) == 2
+
+
+def test_cli_names_a_robot_that_makes_no_sense_before_training(capsys, tmp_path):
+    argv = ["--radius", "0.5", "--arc-min", "0.1", "--arc-max", "3.9", "--out", str(tmp_path / "m")]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: radius 0.5 m is not below the bend radius")
+    assert main(["--length", "0.1", "--out", str(tmp_path / "m")]) == 2  # arc limits 1.6-2.4 do not hold 0.1
+    assert "l_min < length < l_max" in capsys.readouterr().err
+    assert not list(tmp_path.iterdir())
+
+
+def test_cli_trains_a_small_robot_and_its_weights_name_it(tmp_path):
+    from ncedf.model import load_model
+    from ncedf.train import evaluate_model
+
+    out = tmp_path / "small"
+    argv = ["--length", "0.1", "--radius", "0.01", "--arc-min", "0.08", "--arc-max", "0.12", "--layers", "2",
+            "--width", "8", "--epochs", "1", "--configs", "4", "--grid", "6", "--surface", "16",
+            "--val-configs", "4", "--val-points", "512", "--out", str(out)]
+    assert main(argv) == 0
+    model = load_model(out)
+    assert model.spec == RobotSpec(1, 0.1, 0.01, 0.08, 0.12)
+    np.testing.assert_allclose(model.domain, [[-0.125, -0.125, -0.05], [0.125, 0.125, 0.15]])
+    metrics = dict(model.metadata["metrics"])
+    # validated on the small link's own exact distances, with a near field in proportion (at 0.5 m it would be all)
+    val = load_dataset(ValidationConfig(4, 512, box_min=model.domain[0], box_max=model.domain[1]), model.spec)
+    assert evaluate_model(model, val)["mae"] == pytest.approx(metrics["mae"], rel=1e-5)
+    assert 0 < metrics["near_fraction"] < 0.5
