@@ -21,21 +21,24 @@ from pathlib import Path
 import pandas as pd
 
 from analysis.stats import pooled_mean_std
+from ncedf.robot import RobotSpec
 from recorder import RecorderError, load_summaries
 
 #: Outcomes of finished runs (anything else, e.g. interrupted or none, is left out).
 FINAL = ("success", "collision", "stuck")
 #: Scenario name of an experiment's manifest recording (scenarios.reproduce).
 MANIFEST = "experiment"
+#: The paper's link, against which :func:`robot_label` names another robot.
+PAPER_ROBOT = RobotSpec(1)
 
 
 @dataclasses.dataclass(frozen=True)
 class Recordings:
     """What a folder holds.
 
-    runs: one row per usable run (recorder.read.load_summaries columns plus ``folder``, ``quick`` and
+    runs: one row per usable run (recorder.read.load_summaries columns plus ``folder``, ``quick``,
       ``goal_kind``: the settings' goal, ``fixed``, ``random`` or a position ``X,Y,Z``; ``fixed`` where
-      they name none);
+      they name none; and ``robot``, :func:`robot_label`);
     manifests: one row per experiment manifest;
     problems: (path, why) of every recording left out; seconds: time to read the folder;
     files: recordings found.
@@ -87,7 +90,23 @@ def load(folder: str | Path) -> Recordings:
     marked = runs["quick"].fillna(False).astype(bool) if "quick" in runs else False
     runs["quick"] = runs["folder"].isin(quick_folders) | marked
     runs["goal_kind"] = runs["settings.goal"].fillna("fixed") if "settings.goal" in runs else "fixed"
+    runs["robot"] = [robot_label(row) for _, row in runs.iterrows()]
     return Recordings(runs, manifests, problems, seconds, files)
+
+
+def robot_label(run: pd.Series) -> str:
+    """The robot and the scene's scale of a run, "" for the paper's robot in the scene as built,
+    else e.g. "L 0.1 m, r 0.01 m, scale 0.05" (each part only where it differs)."""
+    parts = []
+    for name, paper_value in (("length", PAPER_ROBOT.length), ("radius", PAPER_ROBOT.radius)):
+        value = run.get(f"robot.{name}")
+        if isinstance(value, float) and value == value and value != paper_value:
+            parts.append(f"{'L' if name == 'length' else 'r'} {value:g} m")
+    options = run.get("settings.options")
+    scale = dict(map(tuple, options)).get("scale") if isinstance(options, list) else None
+    if scale is not None and float(scale) != 1.0:
+        parts.append(f"scale {float(scale):g}")
+    return ", ".join(parts)
 
 
 def pooled(runs: pd.DataFrame, metric: str) -> tuple[float, float, int]:

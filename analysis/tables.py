@@ -185,21 +185,21 @@ def table4(rec: Recordings) -> Table | str:
         return _missing("table4", "cluttered episode")
     rows, data = [], []
     runs = runs.assign(density=_col(runs, "world.density"))
-    groups = _groups(runs, ("goal_kind", "links", "density", "shape", *_EPISODE_KEYS))
-    groups.sort(key=lambda g: (g[0][8], g[0][0], g[0][1], g[0][2], *map(str, g[0][3:8])))
-    for (goal, links, density, shape, controller, samples, horizon, max_steps, quick), g in groups:
+    groups = _groups(runs, ("goal_kind", "links", "density", "shape", *_EPISODE_KEYS, "robot"))
+    groups.sort(key=lambda g: (g[0][8], g[0][9], g[0][0], g[0][1], g[0][2], *map(str, g[0][3:8])))
+    for (goal, links, density, shape, controller, samples, horizon, max_steps, quick, robot), g in groups:
         r = _rates(g["outcome"])
         t_mean, t_std, t_n = _solver(g)
         reached = g.loc[g["outcome"] == "success", "reach_step"]
         reach_mean, reach_std, reach_n = mean_std(reached)
         ref = paper.TABLE4.get(int(links), (np.nan,) * 3) if goal == "fixed" else (np.nan,) * 3
-        data.append({"goal": goal, "links": int(links), "density": density, "shape": shape,
+        data.append({"goal": goal, "links": int(links), "robot": robot, "density": density, "shape": shape,
                      "controller": controller, "samples": int(samples), "horizon": int(horizon),
                      "max_steps": int(max_steps), "quick": bool(quick), **r,
                      "mppi_step_s_mean": t_mean, "mppi_step_s_std": t_std, "mppi_steps": t_n,
                      "reach_step_mean": reach_mean, "reach_step_std": reach_std, "reached": reach_n,
                      "paper_mppi_step_s_mean": ref[0], "paper_mppi_step_s_std": ref[1], "paper_reach_step": ref[2]})
-        rows.append([f"{int(links)}{_quick_tag(quick)}", goal, fmt(density, 1), shape,
+        rows.append([f"{int(links)}{f' ({robot})' if robot else ''}{_quick_tag(quick)}", goal, fmt(density, 1), shape,
                      f"{controller} ({int(samples)}, H {int(horizon)})", str(r["episodes"]),
                      fmt_rate(r["success"], r["success_low"], r["success_high"]),
                      fmt_rate(r["collision"], r["collision_low"], r["collision_high"]),

@@ -141,22 +141,26 @@ def wilson(k: int, n: int, z: float = Z95) -> tuple[float, float]:
 def episodes(args) -> list[tuple[str, EpisodeSettings]]:
     """(group, settings) of every episode a variant runs (controller filled in per variant)."""
     out = []
-    options = (("density", str(args.density)),) if args.density else ()
+    shared = (("scale", str(args.scale)),) if args.scale else ()
+    options = (("density", str(args.density)),) + shared if args.density else shared
+    model = str(args.model.resolve()) if args.model else None
     if "cluttered" in args.scenarios:
         for links in args.links:
             for seed in range(args.seed0, args.seed0 + args.seeds):
-                out.append((f"cluttered L{links}", EpisodeSettings("cluttered", links, seed,
+                out.append((f"cluttered L{links}", EpisodeSettings("cluttered", links, seed, model=model,
                                                                    max_steps=args.max_steps, options=options)))
     if "spheres" in args.scenarios:
         for goal in args.goals:
             for env in range(args.env0, args.env0 + args.envs):
                 out.append((f"spheres {goal}", EpisodeSettings("spheres", 4, args.seed0, env_seed=env, goal=goal,
-                                                               max_steps=args.max_steps)))
+                                                               model=model, max_steps=args.max_steps,
+                                                               options=shared)))
     for world in (w for w in WORLDS if w in args.scenarios):
         for links in args.links:
             for env in range(args.env0, args.env0 + args.envs):
                 out.append((f"{world} L{links}", EpisodeSettings(world, links, args.seed0, env_seed=env,
-                                                                 max_steps=args.max_steps)))
+                                                                 model=model, max_steps=args.max_steps,
+                                                                 options=shared)))
     return out
 
 
@@ -244,11 +248,15 @@ def episodes_config_check(variant: str, settings: EpisodeSettings) -> None:
         raise ValueError(f"variant {variant!r} in the {settings.scenario} scene: {exc}") from None
 
 
-def density_arg(text: str) -> float:
-    try:
-        return option_positive("density", text)
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
+def positive_arg(name: str):
+    """An argparse type: a number > 0, its error naming the option ``name``."""
+    def parse(text: str) -> float:
+        try:
+            return option_positive(name, text)
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+
+    return parse
 
 
 def main(argv=None) -> int:
@@ -266,7 +274,7 @@ def main(argv=None) -> int:
     p.add_argument("--seeds", type=positive, default=3, help="cluttered controller seeds per link count (default 3)")
     p.add_argument("--seed0", type=int, default=0,
                    help="first controller seed; the spheres' episodes use this one (default 0)")
-    p.add_argument("--density", type=density_arg,
+    p.add_argument("--density", type=positive_arg("density"),
                    help="cluttered: observed points per m^2 of box face (default: the paper's 4)")
     p.add_argument("--envs", type=positive, default=10,
                    help="spheres environments per goal kind, and each world's per link count (default 10)")
@@ -274,6 +282,8 @@ def main(argv=None) -> int:
     p.add_argument("--goals", default="fixed", type=lambda t: parse_list(t, str, "goal", ("fixed", "random")),
                    help="spheres goal kinds (default fixed)")
     p.add_argument("--max-steps", type=positive, help="override every scenario's step budget")
+    p.add_argument("--model", type=Path, help="N-CEDF weights: the robot and its network (default: the shipped)")
+    p.add_argument("--scale", type=positive_arg("scale"), help="scale every scene by S about the base (default 1)")
     p.add_argument("--quick", action="store_true",
                    help="smoke run: 1 seed, 2 environments, ours and paper, 60 steps")
     p.add_argument("--timing", type=positive, metavar="STEPS",

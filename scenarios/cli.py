@@ -47,8 +47,10 @@ def make_parser(scenario: str, description: str, *, links: int = 4, max_steps: i
     p.add_argument("--shape", default="ncedf",
                    help="robot-shape representation of the controller: ncedf, spheres, pointcloud:P, exact "
                         "(default ncedf)")
-    p.add_argument("--model", metavar="PATH", help="N-CEDF weights (.msgpack/.json or their stem) for --shape ncedf "
-                                                   "(default: the shipped model)")
+    p.add_argument("--model", metavar="PATH", help="N-CEDF weights: the robot's links and, for --shape ncedf, its "
+                                                   "network (default: the shipped model)")
+    p.add_argument("--scale", metavar="S", help="scale the scene (obstacles, speeds, goal) by S about the base; "
+                                                "--goal is unscaled (default 1)")
     p.add_argument("--controller", choices=tuple(PRESETS), default=DEFAULT,
                    help=f"controller preset, listed below (default {DEFAULT})")
     p.add_argument("--samples", type=int, help="MPPI rollouts (default: the controller's)")
@@ -75,8 +77,11 @@ def parse_formats(text: str) -> tuple[str, ...]:
 def base_settings(scenario: str, args: argparse.Namespace, **fields) -> EpisodeSettings:
     """EpisodeSettings from the shared options, plus scenario fields (goal, options).
 
-    A model path is kept absolute, so the recorded settings rerun from any folder.
+    A model path is kept absolute, so the recorded settings rerun from any folder; ``--scale`` is
+    kept as the shared option ``scale``.
     """
+    if args.scale is not None:
+        fields["options"] = (*fields.get("options", ()), ("scale", args.scale))
     return EpisodeSettings(
         scenario=scenario, links=args.links, seed=args.seed, env_seed=args.env_seed, shape=args.shape,
         model=str(Path(args.model).resolve()) if args.model else None, controller=args.controller,

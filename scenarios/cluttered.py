@@ -34,7 +34,7 @@ import numpy as np
 from ncedf.robot import RobotSpec, end_effector_pose, sample_arc_lengths
 from scenarios.cli import base_settings, make_parser, run_cli
 from scenarios.episode import (DRAW_ATTEMPTS, EpisodeSettings, Scene, check_reach, goal_position, make_scene,
-                               option_positive, scenario_options)
+                               option_positive, scenario_options, scene_robot)
 from scenarios.box_distance import box_sdf
 from scenarios.truth import true_distances_batch
 from scenarios.world import Box, MovingSphere, World
@@ -128,7 +128,7 @@ def build(settings: EpisodeSettings) -> Scene:
     """The cluttered scene for ``settings`` (option ``density``; the paper's goal, a random one or a position)."""
     options = scenario_options(settings, OPTIONS)
     density = option_positive("density", options.get("density", str(DENSITY)))
-    spec = RobotSpec(settings.links)
+    spec = scene_robot(settings)
     goal, info = goal_position(settings.goal), {}
     if goal is not None:
         check_goal(goal, spec)

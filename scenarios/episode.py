@@ -80,6 +80,7 @@ from ncedf.mppi import MPPIConfig
 from ncedf.presets import DEFAULT, PRESETS, observe, preset
 from ncedf.robot import RobotSpec, arc_lengths_to_config, forward_kinematics, project_state
 from ncedf.shapes import make_shape
+from ncedf.units import to_reference, unit
 from recorder import Recorder, RecordingInterrupted
 from recorder.recorder import FORMATS, check_writable, output_paths
 from scenarios import WORLDS
@@ -118,13 +119,15 @@ class EpisodeSettings:
       seed: controller noise (MPPI key).  env_seed: the environment (random
         obstacles, port position, goal, observed surface points).
       shape: robot-shape representation for the controller (``ncedf.shapes.make_shape``).
-      model: N-CEDF weights (path) for shape ``ncedf``; None = the shipped model.
+      model: N-CEDF weights (path): the robot's link geometry and, for shape ``ncedf``, its
+        network; None = the shipped model.
       controller: a preset of ``ncedf.presets`` (``paper``, ``release`` or ``ours``).
       samples, horizon: override the preset's rollouts and horizon.
       max_steps: override the scenario's step budget.
       goal: ``fixed``, ``random`` or a position ``"X,Y,Z"``, m (scenarios that draw
         goals; :func:`goal_position`; kept as :func:`goal_text`).
-      options: scenario-specific (name, value) text pairs, kept sorted by name.
+      options: scenario-specific (name, value) text pairs, kept sorted by name; ``scale``
+        (every scenario, ``SHARED_OPTIONS``) scales the scene (:func:`make_scene`).
     """
 
     scenario: str
@@ -150,11 +153,8 @@ class EpisodeSettings:
                 raise ValueError(f"{name} must be an integer in [0, 2^32), got {value!r}")
         if not isinstance(self.shape, str) or not self.shape:
             raise ValueError(f"shape must be a representation name, got {self.shape!r}")
-        if self.model is not None:
-            if not isinstance(self.model, str) or not self.model:
-                raise ValueError(f"model must be a path or None, got {self.model!r}")
-            if self.shape != "ncedf":
-                raise ValueError(f"a model file ({self.model}) is only used by shape 'ncedf', not {self.shape!r}")
+        if self.model is not None and (not isinstance(self.model, str) or not self.model):
+            raise ValueError(f"model must be a path or None, got {self.model!r}")
         if self.controller not in PRESETS:
             raise ValueError(f"unknown controller {self.controller!r}; choose one of {', '.join(PRESETS)}")
         for name in ("samples", "horizon", "max_steps"):
@@ -245,9 +245,26 @@ class Scene:
     info: dict = dataclasses.field(default_factory=dict)
 
 
+def robot_spec(settings: EpisodeSettings) -> RobotSpec:
+    """The robot: ``settings.links`` links of the geometry the model (``settings.model``, else the
+    shipped one) was trained for."""
+    return RobotSpec(settings.links, **load_model(settings.model).spec.link_geometry())
+
+
+def scene_scale(settings: EpisodeSettings) -> float:
+    """The shared option ``scale`` (default 1); ValueError naming a bad one."""
+    return option_positive("scale", dict(settings.options).get("scale", "1"))
+
+
+def scene_robot(settings: EpisodeSettings) -> RobotSpec:
+    """The robot in the scene as a scenario builds it, before :func:`make_scene` scales it by ``scale``."""
+    return robot_spec(settings).scaled(1.0 / scene_scale(settings))
+
+
 def make_scene(settings: EpisodeSettings, world, goal, tolerance: float, max_steps: int, **info) -> Scene:
-    """Assemble a Scene: observer from ``env_seed``, robot, and the controller preset for the robot
-    and what it observes (``ncedf.presets.Observation``).
+    """Assemble a Scene: the world, goal and tolerance as built scaled by the option ``scale`` about
+    the base, the observer from ``env_seed``, the robot, and the controller preset for the robot and
+    what it observes (``ncedf.presets.Observation``, both in the robot's units, ``ncedf.units``).
 
     ``settings.max_steps`` overrides ``max_steps``; a (4, 4) goal is a pose goal
     (judged with ``ANGLE_TOLERANCE``).
@@ -257,11 +274,18 @@ def make_scene(settings: EpisodeSettings, world, goal, tolerance: float, max_ste
         raise ValueError(f"goal must be a finite position (3,) or pose (4, 4), got {goal.tolist()}")
     if not tolerance > 0:
         raise ValueError(f"goal tolerance must be > 0, got {tolerance}")
+    factor = scene_scale(settings)
+    world, tolerance = world.scaled(factor), tolerance * factor
+    if goal.shape == (4, 4):
+        goal[:3, 3] *= factor
+    else:
+        goal = goal * factor
     observer = make_observer(world, settings.env_seed)
-    spec = RobotSpec(settings.links)
-    dt = MPPIConfig.dt
-    observation = observe(observer.observe(0.0), observer.observe(dt), dt, ball_radius=world.margin_extra)
-    config = preset(settings.controller, spec, observation, samples=settings.samples, horizon=settings.horizon)
+    spec = robot_spec(settings)
+    dt, u = MPPIConfig.dt, unit(spec)
+    observation = observe(observer.observe(0.0) / u, observer.observe(dt) / u, dt, ball_radius=world.margin_extra / u)
+    config = preset(settings.controller, to_reference(spec), observation, samples=settings.samples,
+                    horizon=settings.horizon)
     return Scene(world=world, observer=observer, goal=goal, tolerance=float(tolerance),
                  max_steps=settings.max_steps or max_steps, spec=spec, config=config,
                  angle_tolerance=ANGLE_TOLERANCE if goal.shape == (4, 4) else None, info=info)
@@ -287,9 +311,14 @@ def require_fixed_goal(settings: EpisodeSettings) -> None:
                          "and cluttered")
 
 
+#: Options every scenario takes (read by :func:`make_scene`, not by the scenario).
+SHARED_OPTIONS = ("scale",)
+
+
 def scenario_options(settings: EpisodeSettings, known: tuple[str, ...] = ()) -> dict[str, str]:
-    """The scenario options of ``settings`` by name; ValueError naming any not in ``known``."""
-    options = dict(settings.options)
+    """The scenario's own options of ``settings`` by name (``SHARED_OPTIONS`` left out); ValueError
+    naming any not in ``known``."""
+    options = {k: v for k, v in settings.options if k not in SHARED_OPTIONS}
     unknown = sorted(set(options) - set(known))
     if unknown and not known:
         raise ValueError(f"scenario {settings.scenario} takes no options, got {options}")
@@ -461,7 +490,8 @@ class Episode:
         self.mppi = Controller(scene.spec, self.shape, scene.config)
 
     def run_meta(self, mesh_every: int) -> dict[str, Any]:
-        """The ``/run`` metadata: everything needed to rerun the episode."""
+        """The ``/run`` metadata: everything needed to rerun the episode. ``mppi`` is the controller's
+        configuration in reference units (``ncedf.units``), ``mppi_unit`` the metres per unit."""
         s, scene = self.settings, self.scene
         return {
             "scenario": s.scenario,
@@ -472,6 +502,7 @@ class Episode:
             "controller": s.controller,
             "settings": s.to_dict(),
             "mppi": config_to_dict(scene.config),
+            "mppi_unit": self.mppi.unit,
             "robot": dataclasses.asdict(scene.spec),
             "model": self.model,
             "world": describe_world(scene.world),
@@ -512,7 +543,7 @@ class Episode:
         recorder = None
         if out is not None:
             recorder = Recorder(out, self.run_meta(mesh_every), formats, overwrite=overwrite,
-                                safety_margin=scene.config.mppi.safety_margin - scene.world.margin_extra,
+                                safety_margin=scene.config.mppi.safety_margin * mppi.unit - scene.world.margin_extra,
                                 goal_tolerance=scene.tolerance, viewer=viewer)
         loop = _Loop(self, recorder, mesh_every, progress)
         try:

@@ -25,7 +25,7 @@ from ncedf.geometry import robot_signed_distance
 from ncedf.robot import RobotSpec, end_effector_pose, sample_arc_lengths
 from scenarios.cli import base_settings, make_parser, run_cli
 from scenarios.episode import (DRAW_ATTEMPTS, EpisodeSettings, Scene, check_reach, goal_position, make_scene,
-                               scenario_options)
+                               scenario_options, scene_robot)
 from scenarios.world import MovingSphere, World
 
 N_SPHERES = 8
@@ -88,7 +88,7 @@ def make_environment(env_seed: int, spec: RobotSpec, goal: str = "fixed") -> tup
 def build(settings: EpisodeSettings) -> Scene:
     """The dynamic-spheres scene for ``settings`` (goal fixed, random or a position; no options)."""
     scenario_options(settings)
-    spec = RobotSpec(settings.links)
+    spec = scene_robot(settings)
     world, goal, attempts = make_environment(settings.env_seed, spec, settings.goal)
     return make_scene(settings, world, goal, TOLERANCE, MAX_STEPS, environment_attempts=attempts)
 

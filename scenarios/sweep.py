@@ -623,7 +623,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     ep.add_argument("--goal", metavar="GOAL", help=f"{', '.join(GOALS)} or a position X,Y,Z in m (spheres and "
                                                    "cluttered; --goal=-4,0,4 when X is negative; "
                                                    f"default {EpisodeSettings.goal})")
-    ep.add_argument("--model", help="N-CEDF weights (default: the shipped model)")
+    ep.add_argument("--model", help="N-CEDF weights: the robot's links and its network (default: the shipped model)")
     ep.add_argument("--option", type=_option, action="append", default=[], metavar="KEY=VALUE",
                     help="scenario option, repeatable (e.g. custom: obstacles=FILE, an absolute path for Ray)")
     run = p.add_argument_group("running")

@@ -157,7 +157,7 @@ def test_settings_validate_and_round_trip():
     assert s.options == (("a", "1"), ("b", "2"))
     assert EpisodeSettings.from_dict(s.to_dict()) == s
     for bad, text in [(dict(links=0), "links"), (dict(scenario="moon"), "moon"), (dict(seed=-1), "seed"),
-                      (dict(controller="best"), "best"), (dict(shape="exact", model="m.msgpack"), "m.msgpack"),
+                      (dict(controller="best"), "best"), (dict(model=""), "model"),
                       (dict(goal="north"), "north"), (dict(samples=0), "samples"),
                       (dict(options=(("a", "1"), ("a", "2"))), "twice")]:
         with pytest.raises(ValueError, match=text):
@@ -216,3 +216,22 @@ def test_removed_experiments_in_old_settings_are_named():
         config_from_dict({"samples": 8, "temperature": 0.02, "predict_motion": True})
     with pytest.raises(ValueError, match="unknown controller settings"):
         config_from_dict({"samples": 8, "temperature": 0.02, "wobble": 1})
+
+
+def test_a_half_size_robot_in_the_half_size_scene_runs_the_same_episode_at_half_size(clouds, recordings, tmp_path):
+    from ncedf.model import load_model, save_model
+    from ncedf.robot import RobotSpec
+
+    model = load_model()
+    half_robot = RobotSpec(1, 1.0, 0.1, 0.8, 1.2)
+    save_model(tmp_path / "half", model.params, model.config, half_robot, {},
+               tuple(tuple(0.5 * v for v in corner) for corner in model.domain))
+    full = settings_for(clouds["ball"], (2.0, 0.0, 6.5), 4, seed=5)
+    half = dataclasses.replace(full, model=str(tmp_path / "half"), options=full.options + (("scale", "0.5"),))
+    runs = [read(run_episode(s, out=recordings / name, formats=("mcap",)))
+            for s, name in ((full, "full"), (half, "half"))]
+    assert runs[1].meta["robot"]["length"] == 1.0 and runs[1].meta["goal"] == [1.0, 0.0, 3.25]
+    for column in ("goal_distance", "true_min_distance", "predicted_min_distance"):
+        np.testing.assert_array_equal(runs[1].metrics[column], 0.5 * runs[0].metrics[column])
+    np.testing.assert_array_equal(runs[1].state[["ee_x", "ee_y", "ee_z"]], 0.5 * runs[0].state[["ee_x", "ee_y", "ee_z"]])
+    assert runs[1].outcome["outcome"] == runs[0].outcome["outcome"]
