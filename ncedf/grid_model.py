@@ -16,15 +16,19 @@ without assuming convexity:
   narrower than ``2 reach`` fills, though). Free cells that do not connect to
   the grid's border are enclosed by the closed surface, inside a solid, and are
   closed too;
-* the field: the signed distance of each cell centre to the closed cells'
-  centres (negative inside: minus the distance to the nearest free cell).
+* the field: at a free cell's centre the distance to the nearest observed point
+  or closed cell without a point, whichever is nearer (the points' distance
+  exact, by a k-d tree, within ``EXACT_BAND`` of them; farther, the distance to
+  the hit cells' centres less half a cell's diagonal); inside the closed cells
+  minus the distance to the nearest free cell.
 
-Distance of a point x (:func:`grid_distance`): ``f(c) - |x - c| - h sqrt(3) / 2``
-with c the cell nearest to x clamped into the grid. Proof that it is at most
-the distance d(x) from x to the observed points (the closed set holds every hit
-cell): a point p lies within ``h sqrt(3) / 2`` of its cell's centre, so
-``f(c) <= |c - p| + h sqrt(3) / 2`` for the p nearest x, and
-``|c - p| <= |x - p| + |x - c|`` (the triangle inequality). The robot's clearance
+Distance of a point x (:func:`grid_distance`): ``f(c) - |x - c|`` with c the cell
+nearest to x clamped into the grid. Proof that it is at most the distance d(x)
+from x to the observed points and the closed cells' centres: at a free c,
+``f(c)`` is at most the distance from c to them (a point p lies within
+``h sqrt(3) / 2`` of its cell's centre, so the hit cells' distance less that is
+at most |c - p|), and that distance is 1-Lipschitz; at a closed c it is
+negative. The robot's clearance
 (:func:`grid_clearance`) is that at the centres of the balls that cover each link
 (``ncedf.convex.COVER_SPHERES``), less their radii.
 
@@ -42,6 +46,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from scipy import ndimage
+from scipy.spatial import cKDTree
 
 from ncedf.convex import COVER_SPHERES, static_rows
 from ncedf.robot import RobotSpec
@@ -56,6 +61,9 @@ FAR = 1e6
 REACH = 2.0
 #: The factor the reach shrinks by while it shuts the goal in.
 SHRINK = 0.9
+#: Free cells within this distance of a hit cell get the points' exact distance, m (beyond it the
+#: field's error is small beside the distance).
+EXACT_BAND = 1.0
 
 
 class Grid(NamedTuple):
@@ -122,14 +130,19 @@ def closed_cells(hit: np.ndarray, h: float, reach: float, gap: float) -> np.ndar
     return closed | ~np.isin(labels, border_labels(labels))
 
 
-def signed_field(closed: np.ndarray, h: float) -> np.ndarray:
-    """(X, Y, Z) float32: each centre's distance to the closed centres, minus the distance to the
-    free ones inside, m (the whole grid closed: minus the grid's diagonal)."""
+def signed_field(closed: np.ndarray, hit: np.ndarray, points: np.ndarray, origin: np.ndarray,
+                 h: float) -> np.ndarray:
+    """(X, Y, Z) float32: the field of the module docstring, m (the whole grid closed: minus the
+    grid's diagonal), for the ``hit`` cells of ``points`` (N, 3) on the grid at ``origin``."""
     if closed.all():
         return np.full(closed.shape, -h * float(np.linalg.norm(closed.shape)), np.float32)
-    outside = ndimage.distance_transform_edt(~closed, sampling=h)
+    to_hits = ndimage.distance_transform_edt(~hit, sampling=h) - h * np.sqrt(3.0) / 2.0
+    filled = closed & ~hit
+    to_filled = ndimage.distance_transform_edt(~filled, sampling=h) if filled.any() else np.inf
+    near = ~closed & (to_hits <= EXACT_BAND)
+    to_hits[near] = cKDTree(points).query(origin + h * np.argwhere(near), workers=-1)[0]
     inside = ndimage.distance_transform_edt(closed, sampling=h)
-    return np.where(closed, -inside, outside).astype(np.float32)
+    return np.where(closed, -inside, np.minimum(to_hits, to_filled)).astype(np.float32)
 
 
 def goal_open(field: np.ndarray, cell: tuple, room: float) -> bool:
@@ -149,10 +162,10 @@ def _fit(data: bytes, anchors: bytes, model: GridModel) -> Grid:
     hit[tuple(np.rint((points - origin) / h).astype(int).T)] = True
     goal = tuple(np.clip(np.rint((anchors[-1] - origin) / h).astype(int), 0, np.asarray(shape) - 1))
     reach = REACH * model.gap
-    field = signed_field(closed_cells(hit, h, reach, model.gap), h)
+    field = signed_field(closed_cells(hit, h, reach, model.gap), hit, points, origin, h)
     while reach > h and not goal_open(field, goal, model.keep_open):
         reach *= SHRINK
-        field = signed_field(closed_cells(hit, h, reach, model.gap), h)
+        field = signed_field(closed_cells(hit, h, reach, model.gap), hit, points, origin, h)
     return Grid(origin.astype(np.float32), np.float32(h), field)
 
 
@@ -176,7 +189,7 @@ def grid_distance(grid: Grid, x: jnp.ndarray) -> jnp.ndarray:
     cell = jnp.clip(jnp.rint((x - grid.origin) / grid.spacing), 0, size - 1).astype(jnp.int32)
     centre = grid.origin + grid.spacing * cell.astype(x.dtype)
     reach = jnp.sqrt(jnp.sum((x - centre) ** 2, axis=-1))
-    return grid.values[cell[..., 0], cell[..., 1], cell[..., 2]] - reach - grid.spacing * np.sqrt(3.0) / 2.0
+    return grid.values[cell[..., 0], cell[..., 1], cell[..., 2]] - reach
 
 
 def grid_clearance(arcs: jnp.ndarray, frames: jnp.ndarray, spec: RobotSpec, grid: Grid) -> jnp.ndarray:

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from ncedf.controller import Controller, ControllerConfig
-from ncedf.grid_model import REACH, GridModel, grid_clearance, grid_distance
+from ncedf.grid_model import EXACT_BAND, REACH, GridModel, grid_clearance, grid_distance
 from ncedf.guide import Guide, guided_distance
 from ncedf.presets import Observation, ours, sampling_gap
 from ncedf.robot import RobotSpec, forward_kinematics
@@ -42,6 +42,23 @@ def test_the_grid_distance_is_a_lower_bound_of_the_distance_to_the_points():
     # point than the reach: there the bound is within it and two half cell diagonals.
     outside = np.max(np.abs(queries), axis=1) > 2.0 + REACH * 0.3
     assert np.all(truth[outside] - bound[outside] <= REACH * 0.3 + float(grid.spacing) * np.sqrt(3.0) + 1e-5)
+
+
+def test_a_free_cell_near_the_points_holds_the_exact_distance_to_the_points_and_filled_cells():
+    """Brute force at 2000 free cells within EXACT_BAND of the points: the nearer of the points
+    and the centres of the closed cells that hold no point (closed cells have negative values)."""
+    points = RNG.uniform(-2.0, 2.0, (300, 3)).astype(np.float32)
+    grid = fit(points, (0.0, 0.0, 3.0), gap=0.3)
+    values, h, origin = np.asarray(grid.values), float(grid.spacing), np.asarray(grid.origin, np.float64)
+    hit = np.zeros(values.shape, bool)
+    hit[tuple(np.rint((points - origin) / h).astype(int).T)] = True
+    filled = origin + h * np.argwhere((values < 0) & ~hit)
+    free = origin + h * np.argwhere(values >= 0)
+    to_points = np.min(np.linalg.norm(free[:, None] - points[None], axis=-1), axis=1)
+    sample = RNG.choice(np.flatnonzero(to_points < EXACT_BAND - h), 2000, replace=False)
+    expected = np.minimum(to_points[sample], np.min(np.linalg.norm(free[sample, None] - filled[None], axis=-1), axis=1))
+    cells = tuple(np.rint((free[sample] - origin) / h).astype(int).T)
+    np.testing.assert_allclose(values[cells], expected, atol=1e-5)
 
 
 def test_a_wall_sampled_at_the_papers_density_is_closed_and_its_opening_kept():
