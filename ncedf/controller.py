@@ -217,7 +217,7 @@ class Controller:
         if c.recovery is not None and goal.shape == (3,):
             action, route, mppi = supervise(c.recovery, self.core_spec, self.check_moves(arc, points, mask, model),
                                             c.mppi.safety_margin, c.mppi.control_bound, c.mppi.dt, route, mppi,
-                                            arc, goal, model, action)
+                                            arc, goal, model, action, guide)
         if not bool(jnp.all(jnp.isfinite(action))):
             raise FloatingPointError("MPPI produced a non-finite action; the inputs or the shape model are broken")
         if self.unit != 1.0:
@@ -230,12 +230,12 @@ class Controller:
         tip already is, and the check of a route's moves), which would otherwise compile mid-episode."""
         inputs = self._inputs(state, arc, goal, obstacle_points)
         jax.block_until_ready(self._advance(state, *inputs))
-        arc, goal, points, mask, model, _ = inputs
+        arc, goal, points, mask, model, guide = inputs
         if self.config.recovery is None or goal.shape != (3,):
             return
         here = np.asarray(arc)
         plan_route(self.core_spec, model, here, tips(here[None], self.core_spec)[0], state.mppi.key,
-                   self.config.recovery.route)
+                   self.config.recovery.route, None if guide is None else np.array([1.0, 0.0, 0.0]))
         jax.block_until_ready(self.check_moves(arc, points, mask, model)(jnp.zeros((2,) + arc.shape, jnp.float32)))
 
 

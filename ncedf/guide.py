@@ -14,6 +14,8 @@ to the grid where it lies outside. Where the goal is a pose, the guided distance
 takes the place of the position's share of the Frobenius distance.
 
 The field is computed once per grid and goal (scipy's Dijkstra, outside the jitted step).
+:func:`approach` reads the direction the guided path arrives at the goal along, for the
+route recovery's goal states (``ncedf.route``).
 """
 
 from __future__ import annotations
@@ -82,3 +84,34 @@ def guided_distance(field: Grid, x: jnp.ndarray) -> jnp.ndarray:
     size = jnp.asarray(field.values.shape)
     inside = jnp.clip(x, field.origin, field.origin + field.spacing * (size - 1))
     return jnp.sum(weights * values, axis=-1) + jnp.sqrt(jnp.sum((x - inside) ** 2, axis=-1))
+
+
+def descent(field: Grid, start) -> np.ndarray:
+    """(K, 3) the centres of the cells from the one nearest ``start`` (3,) m, each the neighbour
+    (of 26) of least value, until none is lower: the guided path towards the goal, m."""
+    values, h = np.asarray(field.values), float(field.spacing)
+    origin, shape = np.asarray(field.origin, np.float64), np.asarray(field.values.shape)
+    cell = np.clip(np.rint((np.asarray(start, np.float64) - origin) / h).astype(int), 0, shape - 1)
+    steps = np.concatenate([OFFSETS, -OFFSETS])
+    path = [cell]
+    while True:
+        around = np.clip(cell + steps, 0, shape - 1)
+        best = int(np.argmin(values[tuple(around.T)]))
+        if values[tuple(around[best])] >= values[tuple(cell)]:
+            return origin + h * np.asarray(path, np.float64)
+        cell = around[best]
+        path.append(cell)
+
+
+def approach(field: Grid, start, goal, back: float) -> np.ndarray | None:
+    """The unit vector (3,) along which the guided path from ``start`` (3,) m arrives at the goal:
+    the field's descent direction (minus its gradient, central differences) at the path's last cell
+    at least ``back`` m from the goal by the field (the start's where none is); None where it is flat."""
+    path = descent(field, start)
+    values, h = np.asarray(field.values, np.float64), float(field.spacing)
+    cells = np.rint((path - np.asarray(field.origin)) / h).astype(int)
+    far = values[tuple(cells.T)] >= back
+    cell = tuple(cells[np.flatnonzero(far)[-1]] if far.any() else cells[0])
+    slope = -np.array([np.gradient(values, h, axis=k)[cell] for k in range(3)])
+    length = float(np.linalg.norm(slope))
+    return slope / length if length > 0 else None

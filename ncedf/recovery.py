@@ -29,7 +29,8 @@ import numpy as np
 from ncedf.mppi import MPPIState
 from ncedf.obstacle_model import left_out, static_part
 from ncedf.robot import RobotSpec
-from ncedf.route import RouteConfig, plan_route
+from ncedf.guide import approach
+from ncedf.route import RouteConfig, plan_route, tips
 from ncedf.validate import check_fields
 
 #: Route states kept (a longer route is thinned evenly).
@@ -81,12 +82,15 @@ def plan_due(recovery: RouteRecovery, route: RouteState, stalled: int) -> bool:
 
 
 def start_route(recovery: RouteRecovery, spec: RobotSpec, route: RouteState, mppi: MPPIState, arc, goal,
-                model) -> tuple[RouteState, MPPIState]:
+                model, guide=None) -> tuple[RouteState, MPPIState]:
     """Plan a route from ``arc`` (M, 3) to the position ``goal`` (3,) round the still part of the
-    fitted obstacle model (``ncedf.obstacle_model.static_part``)."""
-    path = plan_route(spec, static_part(model), np.asarray(arc), np.asarray(goal),
-                      jax.random.fold_in(mppi.key, ROUTE_SALT),
-                      recovery.route)
+    fitted obstacle model (``ncedf.obstacle_model.static_part``), with the guide's field (if any)
+    arriving along its path (``ncedf.guide.approach``)."""
+    arc, goal = np.asarray(arc), np.asarray(goal)
+    direction = None if guide is None else approach(guide, tips(arc[None], spec)[0], goal,
+                                                    recovery.route.approach_back)
+    path = plan_route(spec, static_part(model), arc, goal, jax.random.fold_in(mppi.key, ROUTE_SALT),
+                      recovery.route, direction)
     if path is None:  # the stall count goes on, and with it the stall escape
         return route._replace(routes=route.routes + 1), mppi
     keep = np.unique(np.linspace(0, len(path) - 1, ROUTE_CAPACITY).round().astype(int))
@@ -108,21 +112,21 @@ def route_move(route: RouteState, arc: np.ndarray, control_bound: float, dt: flo
 
 
 def supervise(recovery: RouteRecovery, spec: RobotSpec, check_moves, margin: float, control_bound: float,
-              dt: float, route: RouteState, mppi: MPPIState, arc, goal, model, action):
+              dt: float, route: RouteState, mppi: MPPIState, arc, goal, model, action, guide=None):
     """The action and states after MPPI's step (module docstring): a route's next move when one is
     followed or a plan is due, else MPPI's ``action``.
 
     Args:
       check_moves: ``moves (2, M, 3) -> (2,)`` clearance over the step, m.
       margin: the clearance a move needs, m.
-      mppi: the state after MPPI's step.  arc: (M, 3) m.  goal: (3,) m.
+      mppi: the state after MPPI's step.  arc: (M, 3) m.  goal: (3,) m.  guide: the guide's field or None.
     Returns:
       (action (M, 3) m/s, RouteState, MPPIState).
     """
     if route.at >= len(route.states) - 1:
         if not plan_due(recovery, route, int(mppi.stalled)) or left_out(model):
             return action, route, mppi  # no plan where the model misses an obstacle: the roadmap would not see it
-        route, mppi = start_route(recovery, spec, route, mppi, arc, goal, model)
+        route, mppi = start_route(recovery, spec, route, mppi, arc, goal, model, guide)
         if route.at >= len(route.states) - 1:
             return action, route, mppi
     u, reached = route_move(route, np.asarray(arc), control_bound, dt)

@@ -17,6 +17,14 @@ over arc lengths, checked against the convex model of the static obstacles
   moved by ``goal_iterations`` damped least-squares steps on the tip error
   (:func:`_refine`; ``ncedf.robot.project_state`` keeps them valid), kept where the tip is within
   ``goal_tolerance`` of the goal and the clearance still ``node_clearance``;
+* with an approach direction (the way into the goal, where the goal lies in an
+  opening: ``ncedf.guide.approach``), aligned goal states too: the same
+  candidates refined on the tip's position and its approach axis
+  (``approach_weight``; the weighted axis error too within ``goal_tolerance``), and from each a retraction chain, its tip drawn back
+  along the direction ``retract_step`` at a time for ``retract_steps`` steps
+  (each state refined from the one before), the states kept where their
+  clearance is ``edge_clearance``: a random state almost never threads an
+  opening, and the chains lead out of it;
 * edges: each node to its ``neighbours`` nearest (Euclidean in arc lengths;
   an edge where either node lists the other), kept where the states inside the
   segment, ``check_step`` apart in every arc length, have at least
@@ -81,6 +89,10 @@ class RouteConfig:
       goal_iterations, goal_damping, goal_move: damped least-squares steps on the tip error
         (:func:`_refine`), their damping (m) and the most one moves an arc length (m).
       goal_tolerance: a goal state's tip is this close to the goal, m.
+      approach_weight: an aligned goal state's weight of its approach-axis error (m per unit).
+      retract_step, retract_steps: the retraction chains' steps, m, and their number.
+      approach_back: the approach direction is that of the guided path's last ``approach_back`` m
+        (``ncedf.guide.approach``).
       path_step: the most any arc length changes between the path's states, m.
       lazy_rounds: rounds of :func:`lazy_shortest_path` before it checks every edge left (1: every edge
         checked after the first search, as if all were checked first).
@@ -98,16 +110,21 @@ class RouteConfig:
     goal_damping: float = 0.05
     goal_move: float = 0.05
     goal_tolerance: float = 0.2
+    approach_weight: float = 1.0
+    retract_step: float = 0.2
+    retract_steps: int = 12
+    approach_back: float = 1.0
     path_step: float = 0.002
     lazy_rounds: int = 50
 
     def __post_init__(self):
-        for name in ("samples", "local_samples", "neighbours", "goal_candidates", "goal_iterations", "lazy_rounds"):
+        for name in ("samples", "local_samples", "neighbours", "goal_candidates", "goal_iterations", "lazy_rounds",
+                     "retract_steps"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
                 raise ValueError(f"RouteConfig.{name} must be an integer >= 1, got {value!r}")
         for name in ("local_radius", "check_step", "node_clearance", "edge_clearance", "goal_damping", "goal_move",
-                     "goal_tolerance", "path_step"):
+                     "goal_tolerance", "approach_weight", "retract_step", "approach_back", "path_step"):
             value = getattr(self, name)
             if not np.isfinite(value) or value <= 0:
                 raise ValueError(f"RouteConfig.{name} must be a number > 0, got {value!r}")
@@ -144,23 +161,31 @@ def around(start: jnp.ndarray, key, spec: RobotSpec, count: int, radius: float) 
     return jax.vmap(lambda arc: project_state(arc, spec))(start + scale * direction)
 
 
-@functools.partial(jax.jit, static_argnums=(2, 3, 4, 5))
+@functools.partial(jax.jit, static_argnums=(2, 3, 4, 5, 7))
 def _refine(arcs: jnp.ndarray, goal: jnp.ndarray, spec: RobotSpec, iterations: int, damping: float,
-            move: float) -> jnp.ndarray:
+            move: float, approach=None, weight: float = 0.0) -> jnp.ndarray:
     """States ``arcs`` (K, M, 3), m, moved towards a tip at ``goal`` (3,) m by damped least squares
     (Levenberg-Marquardt with a fixed damping): each iteration moves a state by
     ``-J^T (J J^T + damping^2 I)^-1 e``, with e the tip error (3,) and J (3, 3M) the tip's Jacobian
     on arc changes that keep each link's sum, scaled so that no arc length moves more than ``move``
     m, then projected onto the valid states. About twenty iterations put the tip on the goal where
-    400 gradient steps left millimetres, in a tenth of the time."""
+    400 gradient steps left millimetres, in a tenth of the time. With an ``approach`` (3,) unit
+    vector, e also holds ``weight`` times the errors of the tip's approach axis (its z axis) and of
+    the last link's base from a link's length straight behind the tip along it."""
     keep_sum = jnp.eye(3) - 1.0 / 3.0  # projector onto a link's zero-sum changes
 
-    def tip(arc):
-        return end_effector_pose(arc, spec)[:3, 3]
+    def error(arc):
+        frames = forward_kinematics(arc, spec)
+        tip = frames[-1, :3, 3]
+        if approach is None:
+            return tip - goal
+        last = frames[-2, :3, 3] - (tip - spec.length * approach)  # the last link straight along it
+        return jnp.concatenate([tip - goal, weight * (frames[-1, :3, 2] - approach), weight * last])
 
     def one(arc):
-        jac = (jax.jacfwd(tip)(arc) @ keep_sum).reshape(3, -1)  # (3, 3M)
-        delta = -jac.T @ jnp.linalg.solve(jac @ jac.T + damping**2 * jnp.eye(3), tip(arc) - goal)
+        e = error(arc)
+        jac = (jax.jacfwd(error)(arc) @ keep_sum).reshape(len(e), -1)  # (3 or 9, 3M)
+        delta = -jac.T @ jnp.linalg.solve(jac @ jac.T + damping**2 * jnp.eye(len(e)), e)
         delta = delta * jnp.minimum(1.0, move / jnp.maximum(jnp.max(jnp.abs(delta)), 1e-12))
         return project_state(arc + delta.reshape(arc.shape), spec)
 
@@ -172,24 +197,57 @@ def _tips(arcs: jnp.ndarray, spec: RobotSpec) -> jnp.ndarray:
     return end_effector_pose(arcs, spec)[..., :3, 3]
 
 
+@functools.partial(jax.jit, static_argnums=1)
+def _axes(arcs: jnp.ndarray, spec: RobotSpec) -> jnp.ndarray:
+    return end_effector_pose(arcs, spec)[..., :3, 2]
+
+
 def tips(arcs: np.ndarray, spec: RobotSpec) -> np.ndarray:
     """(N, 3) end-effector positions of (N, M, 3) states, m."""
     return _in_passes(_tips, np.asarray(arcs, np.float32), (3,), spec).astype(np.float64)
 
 
+def _refined(states: np.ndarray, goal: np.ndarray, spec: RobotSpec, config: RouteConfig, approach=None) -> np.ndarray:
+    """:func:`_refine` of up to ``goal_candidates`` states (K, M, 3), padded to that many (one program)."""
+    padded = np.zeros((config.goal_candidates,) + states.shape[1:], np.float32)
+    padded[:len(states)] = states
+    padded[len(states):] = states[:1]
+    direction = None if approach is None else jnp.asarray(approach, jnp.float32)
+    return np.asarray(_refine(jnp.asarray(padded), jnp.asarray(goal, jnp.float32), spec, config.goal_iterations,
+                              config.goal_damping, config.goal_move, direction,
+                              config.approach_weight))[:len(states)]
+
+
 def goal_states(free: np.ndarray, goal: np.ndarray, spec: RobotSpec, polytopes: Polytopes,
-                config: RouteConfig) -> np.ndarray:
+                config: RouteConfig, approach=None) -> np.ndarray:
     """(G, M, 3) states whose tips are within ``goal_tolerance`` of ``goal`` and whose clearance is at least
-    ``node_clearance``: the free states (F, M, 3) nearest the goal, refined (module docstring)."""
+    ``node_clearance``: the free states (F, M, 3) nearest the goal, refined (module docstring), on the tip
+    and, given an ``approach`` (3,) unit vector, on its approach axis too."""
     near = np.argsort(np.linalg.norm(tips(free, spec) - goal, axis=1))[:config.goal_candidates]
-    padded = np.zeros((config.goal_candidates,) + free.shape[1:], np.float32)
-    padded[:len(near)] = free[near]
-    padded[len(near):] = free[near[:1]]
-    moved = np.asarray(_refine(jnp.asarray(padded), jnp.asarray(goal, jnp.float32), spec, config.goal_iterations,
-                               config.goal_damping, config.goal_move))[:len(near)]
+    moved = _refined(free[near], goal, spec, config, approach)
     ok = ((np.linalg.norm(tips(moved, spec) - goal, axis=1) <= config.goal_tolerance)
           & (clearances(moved, spec, polytopes) >= config.node_clearance))
+    if approach is not None:  # and the weighted error of the approach axis within the tolerance too
+        axes = _in_passes(_axes, moved, (3,), spec).astype(np.float64)
+        ok &= config.approach_weight * np.linalg.norm(axes - approach, axis=1) <= config.goal_tolerance
     return moved[ok]
+
+
+def retraction_chains(targets: np.ndarray, goal: np.ndarray, approach: np.ndarray, spec: RobotSpec,
+                      polytopes: Polytopes, config: RouteConfig) -> np.ndarray:
+    """(C, M, 3) the states of the chains from the aligned goal states ``targets`` (G, M, 3) back along
+    ``approach`` (module docstring) that are clear and whose tips lie within ``goal_tolerance`` of
+    their step's target; none without targets."""
+    if len(targets) == 0:
+        return targets
+    chain, current = [], targets[:config.goal_candidates]
+    for k in range(1, config.retract_steps + 1):
+        target = goal - k * config.retract_step * approach
+        current = _refined(current, target, spec, config, approach)
+        kept = ((clearances(current, spec, polytopes) >= config.edge_clearance)
+                & (np.linalg.norm(tips(current, spec) - target, axis=1) <= config.goal_tolerance))
+        chain.append(current[kept])
+    return np.concatenate(chain)
 
 
 def between(a: np.ndarray, b: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
@@ -276,24 +334,29 @@ def lazy_shortest_path(nodes: np.ndarray, i: np.ndarray, j: np.ndarray, w: np.nd
                                                   config.check_step) >= config.edge_clearance, 1, -1)
 
 
-def plan_route(spec: RobotSpec, polytopes: Polytopes, start, goal, key, config: RouteConfig = RouteConfig()
-               ) -> np.ndarray | None:
+def plan_route(spec: RobotSpec, polytopes: Polytopes, start, goal, key, config: RouteConfig = RouteConfig(),
+               approach=None) -> np.ndarray | None:
     """(S, M, 3) the states of a route from the state ``start`` (M, 3) m to one whose tip reaches ``goal`` (3,) m,
     clear of the polytopes, ``path_step`` apart (module docstring), or None when the roadmap holds none.
-    ``key``: jax.random key of the samples."""
+    ``key``: jax.random key of the samples; ``approach``: None or the unit vector (3,) the tip should
+    arrive along (aligned goal states and their retraction chains)."""
     start = np.asarray(start, np.float32)
     goal = np.asarray(goal, np.float64)
     drawn = np.asarray(sample_arc_lengths(key, spec, (config.samples, spec.n_links)), np.float32)
     free = drawn[clearances(drawn, spec, polytopes) >= config.node_clearance]
     if len(free) == 0:
         return None
-    targets = goal_states(free, goal, spec, polytopes, config)
+    targets, chains = goal_states(free, goal, spec, polytopes, config), free[:0]
+    if approach is not None:
+        aligned = goal_states(free, goal, spec, polytopes, config, np.asarray(approach, np.float64))
+        chains = retraction_chains(aligned, goal, np.asarray(approach, np.float64), spec, polytopes, config)
+        targets = np.concatenate([targets, aligned])
     if len(targets) == 0:
         return None
     local = np.asarray(around(jnp.asarray(start), jax.random.fold_in(key, 1), spec, config.local_samples,
                               config.local_radius), np.float32)
     local = local[clearances(local, spec, polytopes) >= config.edge_clearance]
-    nodes = np.concatenate([start[None], free, local, targets])
+    nodes = np.concatenate([start[None], free, local, chains, targets])
     i, j, w = roadmap_edges(nodes, config.neighbours)
     path = lazy_shortest_path(nodes, i, j, w, len(targets), spec, polytopes, config)
     if path is None:

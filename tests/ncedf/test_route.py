@@ -278,3 +278,39 @@ def test_warm_up_compiles_the_routes_programs_so_a_plan_compiles_nothing(cloud):
     _, after, _ = mppi.step(_stalled(state, 50), START, GOAL, cloud)
     assert after.route.routes == 1 and len(after.route.states) > 0  # a plan, its states in other counts than the warm-up's
     assert [p._cache_size() for p in programs] == warm
+
+
+def test_the_approach_is_the_guided_paths_last_direction():
+    """A field that is the straight distance to the goal: its descent runs straight to the goal, so
+    the approach is the direction from the start, within the 26 neighbours' steps."""
+    from ncedf.grid_model import Grid
+    from ncedf.guide import approach, descent
+
+    h, goal = 0.1, np.array([2.0, 1.0, 1.5])
+    centres = np.stack(np.meshgrid(*[np.arange(0, 26) * h] * 3, indexing="ij"), axis=-1)
+    field = Grid(np.zeros(3, np.float32), np.float32(h), np.linalg.norm(centres - goal, axis=-1).astype(np.float32))
+    for way in ([1.0, 0.0, 0.0], [1.0, 1.0, 1.0], [0.0, -1.0, 1.0]):  # lattice directions: straight descents
+        expected = np.asarray(way) / np.linalg.norm(way)
+        start = goal - 1.5 * expected
+        path = descent(field, start)
+        assert np.linalg.norm(path[-1] - goal) <= h * np.sqrt(3) / 2
+        direction = approach(field, start, goal, 1.0)
+        assert np.linalg.norm(direction) == pytest.approx(1.0) and np.degrees(np.arccos(direction @ expected)) < 2.0
+
+
+def test_aligned_goal_states_and_their_retraction_chains_follow_the_approach(polytopes):
+    """The aligned goal states arrive along the approach (tip axis) with their last link straight
+    behind the tip; each chain state's tip lies on the line back from the goal, and is clear."""
+    spec, goal, direction = RobotSpec(5), np.array([3.5, 0.0, 2.0]), np.array([1.0, 0.0, 0.0])  # under the bar
+    config = dataclasses.replace(ROUTE, retract_steps=3, node_clearance=0.05, edge_clearance=0.05)
+    drawn = np.asarray(sample_arc_lengths(jax.random.PRNGKey(2), spec, (600, 5)), np.float32)
+    aligned = goal_states(drawn, goal, spec, polytopes, config, direction)
+    assert len(aligned) > 10
+    frames = np.asarray(jax.vmap(lambda a: route_module.forward_kinematics(a, spec))(jnp.asarray(aligned)))
+    assert np.all(frames[:, -1, :3, 2] @ direction > np.cos(np.radians(12)))
+    assert np.all(np.linalg.norm(frames[:, -2, :3, 3] - (frames[:, -1, :3, 3] - 2.0 * direction), axis=1) < 0.3)
+    chains = route_module.retraction_chains(aligned, goal, direction, spec, polytopes, config)
+    back = (goal - tips(chains, spec)) @ direction  # how far each tip was drawn back along the approach
+    off_line = np.linalg.norm(goal - tips(chains, spec) - back[:, None] * direction, axis=1)
+    assert len(chains) > 0 and np.all(np.isin(np.round(back / 0.2), [1, 2, 3])) and np.all(off_line < 0.2)
+    assert np.all(clearances(chains, spec, polytopes) >= config.edge_clearance)
