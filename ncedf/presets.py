@@ -29,7 +29,8 @@
     that would shut the goal in); the goal cost measures the tip's distance
     along the model's free space (the guide), which leads it round walls to an
     opening; and as with the convex model it is repelled less and escapes
-    stalls, its routes planned round the grid.
+    stalls, its routes planned round the grid and into the opening along the
+    guide's path.
 
 Nothing here depends on a scenario: a world is described by :class:`Observation`.
 The evidence for each choice is in ``results/README.md``.

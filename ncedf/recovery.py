@@ -8,8 +8,9 @@ wrapper runs around an environment's step: when the core's stall count reaches
 ``tries`` plans per episode), it plans a route from the current state round
 the obstacle model's static polytopes (``ncedf.route``; the moving ones are
 left out) or its grid, unless the model left a static cluster out as not convex (the
-roadmap would not see that obstacle). Where the roadmap holds none, nothing
-changes. Else it executes the
+roadmap would not see that obstacle); with the guide's field its goal states
+arrive along the guided path (``ncedf.guide.approach``). Where the roadmap holds
+none, nothing changes. Else it executes the
 route: each step moves to the farthest route state within one step's bound
 (or towards the next, at the bound) if that move passes the safety check,
 which sees the moving obstacles too; else it holds if holding passes, else it
@@ -26,10 +27,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ncedf.guide import approach
 from ncedf.mppi import MPPIState
 from ncedf.obstacle_model import left_out, static_part
 from ncedf.robot import RobotSpec
-from ncedf.guide import approach
 from ncedf.route import RouteConfig, plan_route, tips
 from ncedf.validate import check_fields
 
