@@ -80,12 +80,13 @@ def main(argv=None) -> int:
             print(f"link: L = {length:g} m, r = {model.spec.radius:g} m; validation: {args.configs} configurations x "
                   f"{args.points} points (seed {args.seed}), exact labels; near field = true distance < "
                   f"{NEAR_FIELD * unit(model.spec):g} m ({100 * metrics['near_fraction']:.1f}% of points)")
-            print(f"{'':12s} {'MAE':>8s} {'RMSE':>8s} {'MOE':>8s} {'over p99.9':>11s} {'max err':>8s}   (m)")
+            scale, label = (1e3, "mm") if length < 1.0 else (1.0, "m")  # four decimals of a small link's errors
+            print(f"{'':12s} {'MAE':>8s} {'RMSE':>8s} {'MOE':>8s} {'over p99.9':>11s} {'max err':>8s}   ({label})")
             for name, keys in ROWS:
-                print(f"{name:12s} " + " ".join(f"{metrics[k]:{11 if 'p999' in k else 8}.4f}" for k in keys))
+                print(f"{name:12s} " + " ".join(f"{scale * metrics[k]:{11 if 'p999' in k else 8}.4f}" for k in keys))
             print(f"per link length: MAE / L = {metrics['mae'] / length:.5f}, MOE / L = {metrics['moe'] / length:.5f}")
-            print(f"surface points: mean prediction {metrics['surface_mean']:+.4f} m, "
-                  f"MAE {metrics['surface_mae']:.4f} m")
+            print(f"surface points: mean prediction {scale * metrics['surface_mean']:+.4f} {label}, "
+                  f"MAE {scale * metrics['surface_mae']:.4f} {label}")
             print(f"inference: {inference_ms(model):.3f} ms for one 4-link configuration against 500 points "
                   f"(median, {jax.devices()[0].platform})")
     except Stopped as stop:
