@@ -220,9 +220,7 @@ class Controller:
                                             arc, goal, model, action, guide)
         if not bool(jnp.all(jnp.isfinite(action))):
             raise FloatingPointError("MPPI produced a non-finite action; the inputs or the shape model are broken")
-        if self.unit != 1.0:
-            action, info = action * self.unit, info_to_metres(info, self.unit)
-        return action, ControllerState(mppi, points, mask, route), info
+        return action * self.unit, ControllerState(mppi, points, mask, route), info_to_metres(info, self.unit)
 
     def warm_up(self, state: ControllerState, arc, goal, obstacle_points=None) -> None:
         """Compile what :meth:`step` runs, before a closed loop's first timed step (results
@@ -241,8 +239,6 @@ class Controller:
 
 def to_units(goal: jnp.ndarray, factor: float) -> jnp.ndarray:
     """A position goal (3,) or a pose goal's translation (4, 4) divided by ``factor``."""
-    if factor == 1.0:
-        return goal
     return goal / factor if goal.shape == (3,) else goal.at[:3, 3].divide(factor)
 
 

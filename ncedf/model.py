@@ -196,11 +196,8 @@ class NCEDF:
         Returns:
           (P,) the network's distance, clamped to the chord bounds outside the domain, m.
         """
-        u = unit(self.spec)
-        if u == 1.0:
-            raw = self.apply(encode(points, theta, phi, self.config.encoding))
-        else:
-            raw = u * self.apply(encode(points / u, theta, phi, self.config.encoding))
+        u = unit(self.spec)  # 1 for the paper's link: both scalings exact
+        raw = u * self.apply(encode(points / u, theta, phi, self.config.encoding))
         outside = jnp.any((points < jnp.asarray(self.domain[0])) | (points > jnp.asarray(self.domain[1])), axis=-1)
         lower, upper = chord_bounds_from_end(points, end, sagitta, self.spec.radius)
         return jnp.where(outside, jnp.clip(raw, lower, upper), raw)

@@ -193,18 +193,19 @@ def _refine(arcs: jnp.ndarray, goal: jnp.ndarray, spec: RobotSpec, iterations: i
 
 
 @functools.partial(jax.jit, static_argnums=1)
-def _tips(arcs: jnp.ndarray, spec: RobotSpec) -> jnp.ndarray:
-    return end_effector_pose(arcs, spec)[..., :3, 3]
+def _ends(arcs: jnp.ndarray, spec: RobotSpec) -> jnp.ndarray:
+    return end_effector_pose(arcs, spec)[..., :3, 2:]
 
 
-@functools.partial(jax.jit, static_argnums=1)
-def _axes(arcs: jnp.ndarray, spec: RobotSpec) -> jnp.ndarray:
-    return end_effector_pose(arcs, spec)[..., :3, 2]
+def ends(arcs: np.ndarray, spec: RobotSpec) -> tuple[np.ndarray, np.ndarray]:
+    """The end effectors of (N, M, 3) states: approach axes (N, 3) and positions (N, 3), m."""
+    both = _in_passes(_ends, np.asarray(arcs, np.float32), (3, 2), spec).astype(np.float64)
+    return both[..., 0], both[..., 1]
 
 
 def tips(arcs: np.ndarray, spec: RobotSpec) -> np.ndarray:
     """(N, 3) end-effector positions of (N, M, 3) states, m."""
-    return _in_passes(_tips, np.asarray(arcs, np.float32), (3,), spec).astype(np.float64)
+    return ends(arcs, spec)[1]
 
 
 def _refined(states: np.ndarray, goal: np.ndarray, spec: RobotSpec, config: RouteConfig, approach=None) -> np.ndarray:
@@ -225,10 +226,10 @@ def goal_states(free: np.ndarray, goal: np.ndarray, spec: RobotSpec, polytopes: 
     and, given an ``approach`` (3,) unit vector, on its approach axis too."""
     near = np.argsort(np.linalg.norm(tips(free, spec) - goal, axis=1))[:config.goal_candidates]
     moved = _refined(free[near], goal, spec, config, approach)
-    ok = ((np.linalg.norm(tips(moved, spec) - goal, axis=1) <= config.goal_tolerance)
+    axes, reached = ends(moved, spec)
+    ok = ((np.linalg.norm(reached - goal, axis=1) <= config.goal_tolerance)
           & (clearances(moved, spec, polytopes) >= config.node_clearance))
     if approach is not None:  # and the weighted error of the approach axis within the tolerance too
-        axes = _in_passes(_axes, moved, (3,), spec).astype(np.float64)
         ok &= config.approach_weight * np.linalg.norm(axes - approach, axis=1) <= config.goal_tolerance
     return moved[ok]
 

@@ -267,7 +267,7 @@ def test_route_settings_are_validated():
 
 def test_warm_up_compiles_the_routes_programs_so_a_plan_compiles_nothing(cloud):
     mppi = _controller()
-    programs = [route_module._clearance, route_module._refine, route_module._tips, route_module.around,
+    programs = [route_module._clearance, route_module._refine, route_module._ends, route_module.around,
                 controller_module._check_moves]
     jax.clear_caches()  # so the warm-up compiles each of them, whatever the tests before compiled
     before = [p._cache_size() for p in programs]
