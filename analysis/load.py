@@ -96,12 +96,16 @@ def load(folder: str | Path) -> Recordings:
 
 def robot_label(run: pd.Series) -> str:
     """The robot and the scene's scale of a run, "" for the paper's robot in the scene as built,
-    else e.g. "L 0.1 m, r 0.01 m, scale 0.05" (each part only where it differs)."""
+    else e.g. "L 0.1 m, r 0.01 m, scale 0.05" (each part only where it differs; a tapered robot's
+    radii as "r 0.25-0.15 m")."""
     parts = []
     for name, paper_value in (("length", PAPER_ROBOT.length), ("radius", PAPER_ROBOT.radius)):
         value = run.get(f"robot.{name}")
-        if isinstance(value, float) and value == value and value != paper_value:
-            parts.append(f"{'L' if name == 'length' else 'r'} {value:g} m")
+        label = "L" if name == "length" else "r"
+        if isinstance(value, list) and value:
+            parts.append(f"{label} {value[0]:g}-{value[-1]:g} m")
+        elif isinstance(value, float) and value == value and value != paper_value:
+            parts.append(f"{label} {value:g} m")
     options = run.get("settings.options")
     scale = dict(map(tuple, options)).get("scale") if isinstance(options, list) else None
     if scale is not None and float(scale) != 1.0:

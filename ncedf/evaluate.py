@@ -46,11 +46,28 @@ def inference_times_ms(model, points, arc, repeats: int) -> list[float]:
 
 def inference_ms(model, links: int = 4, points: int = 500, repeats: int = 200, seed: int = 0) -> float:
     """Median wall time (ms) of ``robot_distance`` for one configuration."""
-    spec = RobotSpec(links, model.spec.length, model.spec.radius, model.spec.l_min, model.spec.l_max)
+    spec = RobotSpec(model.spec.n_links if model.spec.tapered else links, **model.spec.link_geometry())
     k_arc, k_pts = jax.random.split(jax.random.PRNGKey(seed))
     arc = sample_arc_lengths(k_arc, spec, (links,))
     pts = unit(spec) * jax.random.uniform(k_pts, (points, 3), minval=-4.0, maxval=8.0)
     return float(np.median(inference_times_ms(model, pts, arc, repeats)))
+
+
+def report_link(model, val_cfg: ValidationConfig, args) -> None:
+    """Print one link network's error table against exact distances."""
+    val = load_dataset(val_cfg, model.spec)
+    metrics = evaluate_model(model, val)
+    length = model.spec.length
+    print(f"link: L = {length:g} m, r = {model.spec.radius:g} m; validation: {args.configs} configurations x "
+          f"{args.points} points (seed {args.seed}), exact labels; near field = true distance < "
+          f"{NEAR_FIELD * unit(model.spec):g} m ({100 * metrics['near_fraction']:.1f}% of points)")
+    scale, label = (1e3, "mm") if length < 1.0 else (1.0, "m")  # four decimals of a small link's errors
+    print(f"{'':12s} {'MAE':>8s} {'RMSE':>8s} {'MOE':>8s} {'over p99.9':>11s} {'max err':>8s}   ({label})")
+    for name, keys in ROWS:
+        print(f"{name:12s} " + " ".join(f"{scale * metrics[k]:{11 if 'p999' in k else 8}.4f}" for k in keys))
+    print(f"per link length: MAE / L = {metrics['mae'] / length:.5f}, MOE / L = {metrics['moe'] / length:.5f}")
+    print(f"surface points: mean prediction {scale * metrics['surface_mean']:+.4f} {label}, "
+          f"MAE {scale * metrics['surface_mae']:.4f} {label}")
 
 
 def main(argv=None) -> int:
@@ -74,20 +91,10 @@ def main(argv=None) -> int:
             cfg = model.config
             print(f"model: {args.model or 'shipped default'}  {cfg.layers} layers x {cfg.width}, "
                   f"encoding {cfg.encoding}, output {cfg.output}")
-            val = load_dataset(val_cfg, model.spec)
-            metrics = evaluate_model(model, val)
-            length = model.spec.length
-            print(f"link: L = {length:g} m, r = {model.spec.radius:g} m; validation: {args.configs} configurations x "
-                  f"{args.points} points (seed {args.seed}), exact labels; near field = true distance < "
-                  f"{NEAR_FIELD * unit(model.spec):g} m ({100 * metrics['near_fraction']:.1f}% of points)")
-            scale, label = (1e3, "mm") if length < 1.0 else (1.0, "m")  # four decimals of a small link's errors
-            print(f"{'':12s} {'MAE':>8s} {'RMSE':>8s} {'MOE':>8s} {'over p99.9':>11s} {'max err':>8s}   ({label})")
-            for name, keys in ROWS:
-                print(f"{name:12s} " + " ".join(f"{scale * metrics[k]:{11 if 'p999' in k else 8}.4f}" for k in keys))
-            print(f"per link length: MAE / L = {metrics['mae'] / length:.5f}, MOE / L = {metrics['moe'] / length:.5f}")
-            print(f"surface points: mean prediction {scale * metrics['surface_mean']:+.4f} {label}, "
-                  f"MAE {scale * metrics['surface_mae']:.4f} {label}")
-            print(f"inference: {inference_ms(model):.3f} ms for one 4-link configuration against 500 points "
+            for link in model.links():
+                report_link(link, val_cfg, args)
+            links = model.spec.n_links if model.spec.tapered else 4
+            print(f"inference: {inference_ms(model):.3f} ms for one {links}-link configuration against 500 points "
                   f"(median, {jax.devices()[0].platform})")
     except Stopped as stop:
         print(f"stopped by {stop}: nothing written", file=sys.stderr)

@@ -97,7 +97,7 @@ def _backbone_circle_distance(points: jnp.ndarray, ab: jnp.ndarray, length: floa
     return safe_sqrt(jnp.where(near, near_sq, bent_sq))
 
 
-def link_signed_distance_ab(points: jnp.ndarray, ab: jnp.ndarray, spec: RobotSpec) -> jnp.ndarray:
+def link_signed_distance_ab(points: jnp.ndarray, ab: jnp.ndarray, spec: RobotSpec, radius=None) -> jnp.ndarray:
     """Signed distance from link-frame points to the link with bending vector ``ab``.
 
     The body is the tube of radius r around the backbone arc, closed by flat
@@ -110,10 +110,11 @@ def link_signed_distance_ab(points: jnp.ndarray, ab: jnp.ndarray, spec: RobotSpe
     Args:
       points: (P, 3) points in the link's base frame, m.
       ab: (2,) bending vector ``theta (cos phi, sin phi)``, rad (theta < pi).
+      radius: the link's radius, m (default ``spec.radius``; a link of a tapered robot).
     Returns:
       (P,) signed distance to the link surface, m; negative inside.
     """
-    length, r = spec.length, spec.radius
+    length, r = spec.length, spec.radius if radius is None else radius
     to_circle = _backbone_circle_distance(points, ab, length)
     a, b = ab[..., 0], ab[..., 1]
     sinc, versc, cos = even_series(a * a + b * b)
@@ -135,17 +136,17 @@ def link_signed_distance_ab(points: jnp.ndarray, ab: jnp.ndarray, spec: RobotSpe
     )
 
 
-def link_signed_distance(points: jnp.ndarray, theta, phi, spec: RobotSpec) -> jnp.ndarray:
+def link_signed_distance(points: jnp.ndarray, theta, phi, spec: RobotSpec, radius=None) -> jnp.ndarray:
     """Signed distance from link-frame points to one link with (theta, phi).
 
     Args:
       points: (P, 3) points in the link's base frame, m.
-      theta, phi: scalars, rad.
+      theta, phi: scalars, rad.  radius: as in :func:`link_signed_distance_ab`.
     Returns:
       (P,) signed distance, m (negative inside); ``abs`` of it is the CEDF label.
     """
     ab = jnp.stack([theta * jnp.cos(phi), theta * jnp.sin(phi)])
-    return link_signed_distance_ab(points, ab, spec)
+    return link_signed_distance_ab(points, ab, spec, radius)
 
 
 def robot_link_signed_distances(points: jnp.ndarray, arc: jnp.ndarray, spec: RobotSpec) -> jnp.ndarray:
@@ -160,7 +161,8 @@ def robot_link_signed_distances(points: jnp.ndarray, arc: jnp.ndarray, spec: Rob
       (M, P) signed distances, m.
     """
     local = points_in_link_frames(points, forward_kinematics(arc, spec))
-    return jax.vmap(link_signed_distance_ab, in_axes=(0, 0, None))(local, bending_vector(arc, spec), spec)
+    return jax.vmap(link_signed_distance_ab, in_axes=(0, 0, None, 0 if spec.tapered else None))(
+        local, bending_vector(arc, spec), spec, spec.radius_of())
 
 
 def robot_signed_distance(points: jnp.ndarray, arc: jnp.ndarray, spec: RobotSpec) -> jnp.ndarray:
@@ -168,7 +170,7 @@ def robot_signed_distance(points: jnp.ndarray, arc: jnp.ndarray, spec: RobotSpec
     return jnp.min(robot_link_signed_distances(points, arc, spec), axis=0)
 
 
-def surface_points_bending_plane(coords: jnp.ndarray, theta, spec: RobotSpec) -> jnp.ndarray:
+def surface_points_bending_plane(coords: jnp.ndarray, theta, spec: RobotSpec, radius=None) -> jnp.ndarray:
     """Map surface coordinates to points of a link bent in the xz-plane.
 
     A surface coordinate ``(u, psi, w)`` names the point
@@ -178,6 +180,7 @@ def surface_points_bending_plane(coords: jnp.ndarray, theta, spec: RobotSpec) ->
 
     Args:
       coords: (..., 3) surface coordinates.  theta: scalar, rad.
+      radius: the link's radius, m, scalar or (...,) (default ``spec.radius``).
     Returns:
       (..., 3) points in the bending-plane frame, m.
     """
@@ -185,7 +188,7 @@ def surface_points_bending_plane(coords: jnp.ndarray, theta, spec: RobotSpec) ->
     t = theta * u
     sinc, versc, cos = even_series(t * t)
     sin = t * sinc
-    length, r = spec.length, spec.radius
+    length, r = spec.length, spec.radius if radius is None else radius
     radial = w * r * jnp.cos(psi)
     x = length * u * t * versc - radial * cos
     z = length * u * sinc + radial * sin
@@ -193,9 +196,10 @@ def surface_points_bending_plane(coords: jnp.ndarray, theta, spec: RobotSpec) ->
     return jnp.stack([x, y, z], axis=-1)
 
 
-def link_surface_points(coords: jnp.ndarray, theta, phi, spec: RobotSpec) -> jnp.ndarray:
-    """Surface coordinates (..., 3) -> link-frame points (..., 3) for (theta, phi)."""
-    bent = surface_points_bending_plane(coords, theta, spec)
+def link_surface_points(coords: jnp.ndarray, theta, phi, spec: RobotSpec, radius=None) -> jnp.ndarray:
+    """Surface coordinates (..., 3) -> link-frame points (..., 3) for (theta, phi); ``radius`` as in
+    :func:`surface_points_bending_plane`."""
+    bent = surface_points_bending_plane(coords, theta, spec, radius)
     return to_bending_plane(bent, -phi)
 
 
@@ -247,7 +251,8 @@ def robot_surface_points(coords: jnp.ndarray, arc: jnp.ndarray, spec: RobotSpec,
       (M, P, 3) world points, m.
     """
     theta, phi = arc_lengths_to_config(arc, spec)
-    local = jax.vmap(link_surface_points, in_axes=(0, 0, 0, None))(coords, theta, phi, spec)
+    local = jax.vmap(link_surface_points, in_axes=(0, 0, 0, None, 0 if spec.tapered else None))(
+        coords, theta, phi, spec, spec.radius_of())
     return points_from_link_frames(local, forward_kinematics(arc, spec) if frames is None else frames)
 
 

@@ -1,7 +1,8 @@
 """The N-CEDF: a per-link MLP composed through the kinematic chain (paper Sec. IV).
 
 ``Gamma(p, q) = min_i Gamma_i(T_0i^-1 p, q_i)`` (paper eq. 5-6), with one
-network ``Gamma_i`` shared by all links (they have the same geometry).
+network ``Gamma_i`` shared by all links when they have the same geometry, and one
+per link for a tapered robot (its parameters stacked along a leading link axis).
 
 Input encodings of a link-frame point ``p`` and the link's (theta, phi):
   ``paper``          (theta, phi, x, y, z), as in the paper;
@@ -122,8 +123,8 @@ def encode(points: jnp.ndarray, theta, phi, encoding: str) -> jnp.ndarray:
     return jnp.concatenate([theta, to_bending_plane(points, phi)], axis=-1)
 
 
-def chord_bounds_from_end(points: jnp.ndarray, end: jnp.ndarray, sagitta, radius: float):
-    """``chord_bounds`` given the link's end point ``end`` (3,) or (P, 3) and sagitta, (P,) each."""
+def chord_bounds_from_end(points: jnp.ndarray, end: jnp.ndarray, sagitta, radius):
+    """``chord_bounds`` given the link's end point ``end`` (3,) or (P, 3), sagitta and radius, scalars or (P,)."""
     t = jnp.clip(jnp.sum(points * end, axis=-1) / jnp.sum(end * end, axis=-1), 0.0, 1.0)
     to_chord = jnp.linalg.norm(points - t[..., None] * end, axis=-1)
     return to_chord - sagitta - radius, to_chord + sagitta
@@ -151,15 +152,26 @@ def init_params(key, config: ModelConfig):
     return MLP(config.layers, config.width).init(key, jnp.zeros((1, config.input_dim)))
 
 
+def model_spec(spec: RobotSpec) -> RobotSpec:
+    """The spec a model holds for a robot: one link, or every link of a tapered robot."""
+    return RobotSpec(spec.n_links if spec.tapered else 1, **spec.link_geometry())
+
+
+def stack_links(params: list):
+    """Per-link parameter trees -> one tree with a leading link axis (a tapered robot's model)."""
+    return jax.tree_util.tree_map(lambda *x: jnp.stack(x), *params)
+
+
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
 class NCEDF:
     """A trained N-CEDF. A JAX pytree: ``params`` are its leaves.
 
     Attributes:
-      params: flax parameters of the link network.
+      params: flax parameters of the link network; a tapered robot's stacked per link (leading axis M).
       config: its architecture (static).
-      spec: the link geometry it was trained for (static; n_links is unused).
+      spec: the link geometry it was trained for (static; ``model_spec``: n_links is 1, or a tapered
+        robot's M).
       domain: (box_min, box_max) of the training points, link frame, m (static).
       meta: metadata read from the weights file (static).
     """
@@ -170,36 +182,47 @@ class NCEDF:
     domain: tuple = dataclasses.field(default=(BOX_MIN, BOX_MAX), metadata=dict(static=True))
     meta: tuple = dataclasses.field(default=(), metadata=dict(static=True))
 
-    def apply(self, inputs: jnp.ndarray) -> jnp.ndarray:
-        """The link distance from encoded inputs, (..., D) -> (...,) m."""
-        return self.config.head(MLP(self.config.layers, self.config.width).apply(self.params, inputs))
+    def apply(self, inputs: jnp.ndarray, link=None) -> jnp.ndarray:
+        """The link distance from encoded inputs, (P, D) -> (P,) m.
 
-    def link_distance(self, points: jnp.ndarray, theta, phi) -> jnp.ndarray:
+        ``link`` (a tapered robot's model only): the link, a scalar, or one per input (P,); the
+        latter runs every link's network on every input and keeps each input's own.
+        """
+        net = MLP(self.config.layers, self.config.width)
+        if not self.spec.tapered:
+            return self.config.head(net.apply(self.params, inputs))
+        if jnp.ndim(link) == 0:
+            return self.config.head(net.apply(jax.tree_util.tree_map(lambda x: jnp.asarray(x)[link], self.params), inputs))
+        every = jax.vmap(net.apply, in_axes=(0, None))(self.params, inputs)  # (M, P)
+        return self.config.head(jnp.take_along_axis(every, link[None], axis=0)[0])
+
+    def link_distance(self, points: jnp.ndarray, theta, phi, link=None) -> jnp.ndarray:
         """Predicted distance from link-frame points to one link.
 
         Args:
           points: (P, 3) points in the link's base frame, m.
-          theta, phi: scalars, rad.
+          theta, phi: scalars, rad.  link: the link's index (a tapered robot's model only).
         Returns:
           (P,) distances, m; beyond the domain, the bound from its nearest point.
         """
         end = link_transform(theta, phi, self.spec)[:3, 3]
-        return self.local_distance(points, theta, phi, end, arc_sagitta(theta, self.spec.length))
+        return self.local_distance(points, theta, phi, end, arc_sagitta(theta, self.spec.length), link)
 
-    def local_distance(self, points: jnp.ndarray, theta, phi, end, sagitta) -> jnp.ndarray:
+    def local_distance(self, points: jnp.ndarray, theta, phi, end, sagitta, link=None) -> jnp.ndarray:
         """``link_distance`` with the link's end point and sagitta already known.
 
         Args:
           points: (P, 3) link-frame points, m.
           theta, phi: scalars or (P,), rad (one link configuration per point).
           end: (3,) or (P, 3) link end points in the link frame, m.  sagitta: scalar or (P,), m.
+          link: scalar or (P,) link index (used by a tapered robot's model).
         Returns:
           (P,) the network's distance, clamped to the chord bounds outside the domain, m.
         """
         u = unit(self.spec)  # 1 for the paper's link: both scalings exact
-        raw = u * self.apply(encode(points / u, theta, phi, self.config.encoding))
+        raw = u * self.apply(encode(points / u, theta, phi, self.config.encoding), link)
         outside = jnp.any((points < jnp.asarray(self.domain[0])) | (points > jnp.asarray(self.domain[1])), axis=-1)
-        lower, upper = chord_bounds_from_end(points, end, sagitta, self.spec.radius)
+        lower, upper = chord_bounds_from_end(points, end, sagitta, self.spec.radius_of(link))
         return jnp.where(outside, jnp.clip(raw, lower, upper), raw)
 
     def robot_link_distances(self, points: jnp.ndarray, arc: jnp.ndarray) -> jnp.ndarray:
@@ -208,20 +231,28 @@ class NCEDF:
         Args:
           points: (P, 3) world points, m.  arc: (M, 3) arc lengths, m.
         """
-        local = points_in_link_frames(points, forward_kinematics(arc, self.spec))
-        theta, phi = arc_lengths_to_config(arc, self.spec)
-        return jax.vmap(self.link_distance)(local, theta, phi)
+        spec = RobotSpec(arc.shape[-2], **self.spec.link_geometry())  # a tapered model's M checked here
+        local = points_in_link_frames(points, forward_kinematics(arc, spec))
+        theta, phi = arc_lengths_to_config(arc, spec)
+        return jax.vmap(self.link_distance)(local, theta, phi, jnp.arange(spec.n_links))
 
     def robot_distance(self, points: jnp.ndarray, arc: jnp.ndarray) -> jnp.ndarray:
         """Predicted distance from world points to the robot, (P,), m (eq. 6)."""
         return jnp.min(self.robot_link_distances(points, arc), axis=0)
+
+    def links(self) -> list:
+        """The model as one-link models: itself, or each link of a tapered robot's."""
+        if not self.spec.tapered:
+            return [self]
+        return [dataclasses.replace(self, params=jax.tree_util.tree_map(lambda x: x[i], self.params),
+                                    spec=self.spec.link(i)) for i in range(self.spec.n_links)]
 
     def rescaled(self, spec: RobotSpec) -> "NCEDF":
         """The same network for ``spec``, the link scaled by ``spec.length / self.spec.length``: its
         distances scale with the link (the network works in the link's units)."""
         factor = spec.length / self.spec.length
         domain = tuple(tuple(v * factor for v in corner) for corner in self.domain)
-        return dataclasses.replace(self, spec=RobotSpec(1, **spec.link_geometry()), domain=domain)
+        return dataclasses.replace(self, spec=model_spec(spec), domain=domain)
 
     @property
     def metadata(self) -> dict:
@@ -284,7 +315,8 @@ def load_model(path=None, expect: ModelConfig | None = None) -> NCEDF:
     try:
         meta = json.loads(meta_path.read_text())
         config = ModelConfig(**meta["architecture"])
-        spec = RobotSpec(n_links=1, **meta["robot"])
+        radius = meta["robot"].get("radius")
+        spec = RobotSpec(n_links=len(radius) if isinstance(radius, list) else 1, **meta["robot"])
         domain = (tuple(meta["domain"]["box_min"]), tuple(meta["domain"]["box_max"]))
     except (ValueError, KeyError, TypeError) as exc:
         raise ModelError(f"corrupted model metadata {meta_path}: {exc}") from None
@@ -293,6 +325,8 @@ def load_model(path=None, expect: ModelConfig | None = None) -> NCEDF:
     if expect is not None and expect != config:
         raise ModelError(f"{weights} holds a {config} network, expected {expect}")
     template = init_params(jax.random.PRNGKey(0), config)
+    if spec.tapered:
+        template = stack_links([template] * spec.n_links)
     try:
         params = flax.serialization.from_bytes(template, weights.read_bytes())
     except Exception as exc:  # msgpack raises many types on garbage

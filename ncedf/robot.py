@@ -33,6 +33,14 @@ class InvalidStateError(ValueError):
     """A robot state (arc lengths) that violates the robot's limits."""
 
 
+def _finite(value, name: str) -> float:
+    """``value`` as a float, or ValueError naming ``name`` if it is not a finite number."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)) \
+            or not math.isfinite(value):
+        raise ValueError(f"{name} must be a finite number, got {value!r}")
+    return float(value)
+
+
 @dataclasses.dataclass(frozen=True)
 class RobotSpec:
     """Geometry and limits of an ``n_links``-link continuum robot.
@@ -40,13 +48,14 @@ class RobotSpec:
     Attributes:
       n_links: number of links M (>= 1).
       length: backbone length L of every link, m.
-      radius: link radius r (chambers sit at r; the tube radius), m.
+      radius: link radius r (chambers sit at r; the tube radius), m: one for every link, or a tuple
+        of M, one per link from the base (a tapered robot; equal values collapse to one).
       l_min, l_max: chamber arc-length limits, m; ``l_min < L < l_max``.
     """
 
     n_links: int
     length: float = 2.0
-    radius: float = 0.2
+    radius: float | tuple = 0.2
     l_min: float = 1.6
     l_max: float = 2.4
 
@@ -55,30 +64,57 @@ class RobotSpec:
             raise ValueError(f"n_links must be an integer, got {self.n_links!r}")
         if self.n_links < 1:
             raise ValueError(f"n_links must be >= 1, got {self.n_links}")
-        for name in ("length", "radius", "l_min", "l_max"):
-            value = getattr(self, name)
-            if not isinstance(value, (int, float, np.floating, np.integer)) or not math.isfinite(value):
-                raise ValueError(f"{name} must be a finite number, got {value!r}")
-        if self.radius <= 0:
+        if isinstance(self.radius, (list, tuple, np.ndarray)):
+            radii = tuple(_finite(v, "radius") for v in self.radius)
+            if len(radii) != self.n_links:
+                raise ValueError(f"{len(radii)} link radii given for a robot of {self.n_links} links")
+            object.__setattr__(self, "radius", radii[0] if len(set(radii)) == 1 else radii)
+        for name in ("length", "l_min", "l_max") + (() if self.tapered else ("radius",)):
+            _finite(getattr(self, name), name)
+        if min(self.radii) <= 0:
             raise ValueError(f"radius must be > 0, got {self.radius}")
         if not 0 < self.l_min < self.length < self.l_max:
             raise ValueError(
                 f"need 0 < l_min < length < l_max, got l_min={self.l_min}, "
                 f"length={self.length}, l_max={self.l_max}"
             )
-        if self.radius * self.max_bend() >= self.length:
+        thinnest = min(self.radii)
+        if thinnest * self.max_bend() >= self.length:
             raise ValueError(
-                f"radius {self.radius} m is not below the bend radius {self.length / self.max_bend():.4g} m that "
+                f"radius {thinnest} m is not below the bend radius {self.length / self.max_bend():.4g} m that "
                 f"the arc limits {self.l_min}-{self.l_max} allow a link of length {self.length} (the tube would "
                 "fold into itself); narrow the arc limits or the radius"
             )
+
+    @property
+    def tapered(self) -> bool:
+        """Whether the links have different radii."""
+        return isinstance(self.radius, tuple)
+
+    @property
+    def radii(self) -> tuple:
+        """The radius of each link, (M,) floats, m."""
+        return self.radius if self.tapered else (self.radius,) * self.n_links
+
+    def radius_of(self, link=None):
+        """Radii that broadcast against per-link arrays, m: the float of a uniform robot; for a
+        tapered one ``radii[link]`` (numpy for a numpy index, else jax), or all M for ``link=None``."""
+        if not self.tapered:
+            return self.radius
+        if isinstance(link, np.ndarray):
+            return np.asarray(self.radius)[link]
+        return jnp.asarray(self.radius) if link is None else jnp.asarray(self.radius)[link]
+
+    def link(self, i: int) -> "RobotSpec":
+        """The one-link spec of link ``i`` (0-based from the base)."""
+        return dataclasses.replace(self, n_links=1, radius=self.radii[i])
 
     def link_geometry(self) -> dict:
         """Every field but ``n_links``: what a single link's data, model or hash depends on."""
         return {k: v for k, v in dataclasses.asdict(self).items() if k != "n_links"}
 
     def max_bend(self) -> float:
-        """Largest bending angle theta (rad) the arc-length limits admit."""
+        """Largest bending angle theta (rad) the arc-length limits admit (of the thinnest link)."""
         # Chamber j deviates by v_j = r theta cos(phi + 2 pi j / 3) (shortening),
         # with sum_j v_j = 0, -hi <= v_j <= lo and theta^2 = (2/3) sum_j v_j^2 / r^2.
         # This convex function is largest at a vertex of the feasible polygon,
@@ -91,14 +127,18 @@ class RobotSpec:
             for vertex in vertices
             if all(-hi - tol <= v <= lo + tol for v in vertex)
         )
-        return math.sqrt(2.0 * best / 3.0) / self.radius
+        return math.sqrt(2.0 * best / 3.0) / min(self.radii)
 
     def scaled(self, factor: float) -> "RobotSpec":
         """The same robot with every length multiplied by ``factor`` (> 0), rounded to 12 digits so that
         scaling there and back returns the same spec."""
         if not factor > 0:
             raise ValueError(f"scale factor must be > 0, got {factor}")
-        return dataclasses.replace(self, **{k: float(f"{v * factor:.12g}") for k, v in self.link_geometry().items()})
+
+        def scale(v):
+            return tuple(scale(x) for x in v) if isinstance(v, tuple) else float(f"{v * factor:.12g}")
+
+        return dataclasses.replace(self, **{k: scale(v) for k, v in self.link_geometry().items()})
 
     def straight_state(self) -> jnp.ndarray:
         """The straight initial state: every arc length = L, shape (M, 3)."""
@@ -114,8 +154,9 @@ def bending_vector(arc: jnp.ndarray, spec: RobotSpec) -> jnp.ndarray:
       (..., 2) array ``(a, b)``; ``theta = |(a, b)|``, ``phi = atan2(b, a)``.
     """
     l1, l2, l3 = arc[..., 0], arc[..., 1], arc[..., 2]
-    a = (l2 + l3 - 2.0 * l1) / (3.0 * spec.radius)
-    b = (l2 - l3) / (SQRT3 * spec.radius)
+    r = spec.radius_of()  # a tapered robot's (M,) broadcast over the link axis of (..., M, 3)
+    a = (l2 + l3 - 2.0 * l1) / (3.0 * r)
+    b = (l2 - l3) / (SQRT3 * r)
     return jnp.stack([a, b], axis=-1)
 
 
@@ -159,7 +200,7 @@ def config_to_arc_lengths(theta: jnp.ndarray, phi: jnp.ndarray, spec: RobotSpec)
     theta = jnp.asarray(theta)
     phi = jnp.asarray(phi)
     angles = jnp.asarray(CHAMBER_ANGLES, dtype=jnp.result_type(phi, float))
-    return spec.length - spec.radius * theta[..., None] * jnp.cos(phi[..., None] + angles)
+    return spec.length - (spec.radius_of() * theta)[..., None] * jnp.cos(phi[..., None] + angles)
 
 
 def even_series(theta_sq: jnp.ndarray):

@@ -31,11 +31,11 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import math
 from typing import NamedTuple, Protocol, runtime_checkable
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ncedf.geometry import (
     link_signed_distance,
@@ -161,10 +161,11 @@ class ExactShape(_Base):
     def pair_distances(self, geom: LinkGeometry, points, link):
         local = world_to_frame(geom.frames[link], points)
 
-        def one(p, th, ph):
-            return link_signed_distance(p[None], th, ph, self.spec)[0]
+        def one(p, th, ph, r):
+            return link_signed_distance(p[None], th, ph, self.spec, r)[0]
 
-        return jax.vmap(one)(local, geom.theta[link], geom.phi[link])
+        radius = jnp.broadcast_to(self.spec.radius_of(link), link.shape)
+        return jax.vmap(one)(local, geom.theta[link], geom.phi[link], radius)
 
     def link_distances(self, points, arc):
         return robot_link_signed_distances(points, arc, self.spec)
@@ -198,7 +199,7 @@ class NCEDFShape(_Base):
         local = world_to_frame(geom.frames[link], points)  # (K, 3)
         theta, phi = geom.theta[link], geom.phi[link]
         end = link_transform(geom.theta, geom.phi, model.spec)[:, :3, 3][link]  # (K, 3)
-        return model.local_distance(local, theta, phi, end, arc_sagitta(theta, model.spec.length))
+        return model.local_distance(local, theta, phi, end, arc_sagitta(theta, model.spec.length), link)
 
     def state_pair_distances(self, arcs, frames, points, link):
         """Batched pairs: the per-link quantities of all states are computed once and
@@ -216,7 +217,7 @@ class NCEDFShape(_Base):
         batch = theta.shape
         return model.local_distance(
             local.reshape(-1, 3), theta.reshape(-1), phi.reshape(-1), gather(end_l).reshape(-1, 3),
-            arc_sagitta(theta, model.spec.length).reshape(-1),
+            arc_sagitta(theta, model.spec.length).reshape(-1), link.reshape(-1),
         ).reshape(batch)
 
     def link_distances(self, points, arc):
@@ -246,7 +247,8 @@ def sphere_cover_radius(theta, spec: RobotSpec, per_link: int):
     """
     delta = spec.length / (2.0 * per_link)
     kappa = jnp.asarray(theta) / spec.length
-    return jnp.sqrt(spec.radius**2 + delta**2 * (1.0 + spec.radius * kappa))
+    r = spec.radius_of()  # theta (..., M) for a tapered robot
+    return jnp.sqrt(r**2 + delta**2 * (1.0 + r * kappa))
 
 
 @jax.tree_util.register_dataclass
@@ -370,7 +372,8 @@ def make_shape(
             model = load_model()
         mspec = model.spec
         for field in ("length", "radius", "l_min", "l_max"):
-            if not math.isclose(getattr(mspec, field), getattr(spec, field), rel_tol=1e-6):
+            ours, theirs = np.atleast_1d(getattr(mspec, field)), np.atleast_1d(getattr(spec, field))
+            if ours.shape != theirs.shape or not np.allclose(ours, theirs, rtol=1e-6, atol=0.0):
                 raise ValueError(
                     f"the N-CEDF was trained for links with {field}={getattr(mspec, field)}, "
                     f"the robot has {field}={getattr(spec, field)}"
@@ -398,5 +401,5 @@ def _surface_coords(seed, per_link: int, spec: RobotSpec):
     """Fixed surface coordinates of a point-cloud shape, (M, per_link, 3); jitted (eagerly,
     the Newton iterations of the sampler compile op by op for every new size)."""
     keys = jax.random.split(jax.random.PRNGKey(seed), spec.n_links)
-    return jnp.stack([sample_surface_coords(keys[i], per_link, 0.0, spec) for i in range(spec.n_links)])
+    return jnp.stack([sample_surface_coords(keys[i], per_link, 0.0, spec.link(i)) for i in range(spec.n_links)])
 

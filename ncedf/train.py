@@ -12,7 +12,9 @@ paper, the learning rate decays on a cosine schedule by default
 The link is the paper's unless ``--length --radius --arc-min --arc-max`` say
 otherwise; its training set is drawn in reference units (``ncedf.units``: the
 link scaled to 2 m, the box and noise of the paper's recipe) and validated on
-exact distances to the link itself. The metadata names the link.
+exact distances to the link itself. The metadata names the link. ``--radius``
+with one value per link (a tapered robot) trains one network per link, each with
+the recipe, and saves them as one model of that robot.
 """
 
 from __future__ import annotations
@@ -33,7 +35,7 @@ from tqdm import tqdm
 
 from ncedf.data import BOX_MAX, BOX_MIN, DatasetConfig, LinkDataset, ValidationConfig, load_dataset
 from ncedf.metrics import NEAR_FIELD, distance_metrics
-from ncedf.model import ENCODINGS, MLP, NCEDF, OUTPUTS, ModelConfig, encode, init_params, save_model
+from ncedf.model import ENCODINGS, MLP, NCEDF, OUTPUTS, ModelConfig, encode, init_params, save_model, stack_links
 from ncedf.robot import RobotSpec
 from ncedf.units import to_reference, unit
 
@@ -272,7 +274,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--val-configs", type=int, default=100)
     p.add_argument("--val-points", type=int, default=4096)
     p.add_argument("--length", type=float, default=2.0, help="link backbone length L, m (default 2, the paper's)")
-    p.add_argument("--radius", type=float, default=0.2, help="link radius r, m (default 0.2)")
+    p.add_argument("--radius", type=float, nargs="+", default=[0.2],
+                   help="link radius r, m (default 0.2); one per link from the base for a tapered robot")
     p.add_argument("--arc-min", type=float, default=1.6, help="shortest chamber arc length, m (default 1.6)")
     p.add_argument("--arc-max", type=float, default=2.4, help="longest chamber arc length, m (default 2.4)")
     p.add_argument("--seed", type=int, default=0)
@@ -286,7 +289,7 @@ def _configs(args):
     """The robot (one link), model, training, dataset and validation configs of the parsed arguments
     (ValueError names a bad one). The training set is of the link in reference units, the validation
     set of the link itself (``ncedf.units``)."""
-    spec = RobotSpec(1, args.length, args.radius, args.arc_min, args.arc_max)
+    spec = RobotSpec(len(args.radius), args.length, tuple(args.radius), args.arc_min, args.arc_max)
     model_cfg = ModelConfig(args.layers, args.width, args.encoding, args.output)
     cfg = TrainConfig(
         epochs=args.epochs,
@@ -306,6 +309,36 @@ def _configs(args):
     val_cfg = ValidationConfig(n_configs=args.val_configs, n_points=args.val_points,
                                box_min=tuple(u * v for v in BOX_MIN), box_max=tuple(u * v for v in BOX_MAX))
     return spec, model_cfg, cfg, data_cfg, val_cfg
+
+
+def worst_metrics(per_link: list) -> dict:
+    """A tapered robot's summary metrics: the worst link's value of each (the largest error)."""
+    return {k: max(m[k] for m in per_link) for k in per_link[0]}
+
+
+def train_links(spec: RobotSpec, model_cfg, cfg, data_cfg, val_cfg, on_epoch=None):
+    """Train every distinct link of ``spec`` (one, or each link of a tapered robot).
+
+    Returns the parameters (stacked per link for a tapered robot), the training sets, the
+    validation sets, the per-link histories and the seconds spent making the data.
+    """
+    links = [spec.link(i) for i in range(spec.n_links)] if spec.tapered else [RobotSpec(1, **spec.link_geometry())]
+    params, data, val, history, data_seconds = [], [], [], [], 0.0
+    for link in links:
+        start = time.perf_counter()
+        data.append(load_dataset(data_cfg, to_reference(link)))
+        val.append(load_dataset(val_cfg, link))
+        data_seconds += time.perf_counter() - start
+        model, rows = train(model_cfg, cfg, data[-1], val[-1], link, domain=(val_cfg.box_min, val_cfg.box_max),
+                            on_epoch=on_epoch)
+        params.append(model.params)
+        history.append(rows)
+    return (stack_links(params) if spec.tapered else params[0]), data, val, history, data_seconds
+
+
+def _one(values: list):
+    """A list of per-link values as the metadata keeps it: the value itself for one link."""
+    return values[0] if len(values) == 1 else values
 
 
 def main(argv=None) -> int:
@@ -340,37 +373,38 @@ def main(argv=None) -> int:
     try:
         with stop_on_signals(), recording as rec:
             start = time.perf_counter()
-            data = load_dataset(data_cfg, to_reference(spec))
-            val = load_dataset(val_cfg, spec)
-            data_seconds = time.perf_counter() - start
-            domain = (val_cfg.box_min, val_cfg.box_max)
+            logged = []
 
-            def record(row):
+            def record(row):  # epochs of every link in turn, numbered on
+                logged.append(row)
                 if rec is not None:
-                    rec.log_step(row["epoch"], float(row["epoch"]),
+                    rec.log_step(len(logged), float(len(logged)),
                                  metrics={k: float(v) for k, v in row.items() if k != "epoch"})
 
-            model, history = train(model_cfg, cfg, data, val, spec, domain=domain, on_epoch=record)
+            params, data, val, history, data_seconds = train_links(spec, model_cfg, cfg, data_cfg, val_cfg, record)
             train_seconds = time.perf_counter() - start - data_seconds
             if rec is not None:
-                rec.finish({"outcome": "success", "steps": len(history)})
+                rec.finish({"outcome": "success", "steps": len(logged)})
     except Stopped as stop:
         kept = f"; the recording {args.record} is kept, marked interrupted" if args.record else ""
         print(f"stopped by {stop}: no model written{kept}", file=sys.stderr)
         return EXIT_STATUS[stop.signum]
-    final = history[-1]
-    metrics = {k: v for k, v in final.items() if k not in ("epoch", "seconds", "samples_per_second")}
+    per_link = [{k: v for k, v in rows[-1].items() if k not in ("epoch", "seconds", "samples_per_second")}
+                for rows in history]
+    metrics = worst_metrics(per_link)
     extra = {
         "command": "python -m ncedf.train " + " ".join(sys.argv[1:] if argv is None else argv),
         **settings,
-        "dataset": {**settings["dataset"], "hash": data.key, "samples": data.n_samples},
-        "validation": {**settings["validation"], "hash": val.key},
+        "dataset": {**settings["dataset"], "hash": _one([d.key for d in data]),
+                    "samples": sum(d.n_samples for d in data)},
+        "validation": {**settings["validation"], "hash": _one([v.key for v in val])},
         "metrics": metrics,
+        **({"link_metrics": per_link} if spec.tapered else {}),
         "train_seconds": round(train_seconds, 1),
-        "history": [{k: round(v, 6) for k, v in row.items()} for row in history],
+        "history": _one([[{k: round(v, 6) for k, v in row.items()} for row in rows] for rows in history]),
         "jax_version": jax.__version__,
     }
-    weights, meta = save_model(args.out, model.params, model_cfg, spec, extra, domain)
+    weights, meta = save_model(args.out, params, model_cfg, spec, extra, (val_cfg.box_min, val_cfg.box_max))
     print(f"trained in {train_seconds:.0f} s ({data_seconds:.0f} s data); wrote {weights} and {meta}")
     print("  ".join(f"{k}={metrics[k]:.4f}" for k in ("mae", "rmse", "moe", "over_p999", "near_mae", "near_moe", "surface_mean")))
     return 0

@@ -84,7 +84,7 @@ def cell_geometry(cells: dict, pose: dict, spec: RobotSpec) -> dict:
     theta, phi, frames = pose["theta"][link], pose["phi"][link], pose["frames"][link]
 
     def world(coords):
-        return frame_to_world(frames, link_surface_points(coords, theta, phi, spec))
+        return frame_to_world(frames, link_surface_points(coords, theta, phi, spec, spec.radius_of(link)))
 
     point, push = jax.linearize(world, cells["coords"])
     unit = jnp.eye(3, dtype=point.dtype)
@@ -121,7 +121,7 @@ def _cell_bounds(geometry: dict, cells: dict, sdf: Callable, spec: RobotSpec):
     value, g = sdf(geometry["point"])
     coords, half, disk = cells["coords"][:, None], cells["half"][:, None], cells["disk"][:, None]
     da, db = half[..., 0], half[..., 1]
-    length, r = spec.length, spec.radius
+    length, r = spec.length, spec.radius_of(cells["link"][:, None])
     theta = geometry["theta"][:, None]
     tan_a, tan_b, tan_w = (geometry[k][:, None] for k in ("tan_a", "tan_b", "tan_w"))
     slope_a = jnp.sum(g * tan_a, axis=-1)
@@ -168,7 +168,8 @@ def surface_cell_bounds(arc, spec: RobotSpec, coords, half, disk, link, sdf: Cal
 def _cell_points(coords: jnp.ndarray, link: jnp.ndarray, pose: dict, spec: RobotSpec) -> jnp.ndarray:
     """World points (C, 3) of surface coordinates (C, 3) on links (C,)."""
     return frame_to_world(pose["frames"][link],
-                          link_surface_points(coords, pose["theta"][link], pose["phi"][link], spec))
+                          link_surface_points(coords, pose["theta"][link], pose["phi"][link], spec,
+                                              spec.radius_of(link)))
 
 
 def _split_robot_cells(cells: dict) -> dict:

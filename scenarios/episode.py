@@ -247,8 +247,12 @@ class Scene:
 
 def robot_spec(settings: EpisodeSettings) -> RobotSpec:
     """The robot: ``settings.links`` links of the geometry the model (``settings.model``, else the
-    shipped one) was trained for."""
-    return RobotSpec(settings.links, **load_model(settings.model).spec.link_geometry())
+    shipped one) was trained for; ValueError if the model is a tapered robot's of other links."""
+    model = load_model(settings.model).spec
+    if model.tapered and model.n_links != settings.links:
+        raise ValueError(f"the model {settings.model} is for a tapered robot of {model.n_links} links, "
+                         f"not {settings.links}: run it with --links {model.n_links}")
+    return RobotSpec(settings.links, **model.link_geometry())
 
 
 def scene_scale(settings: EpisodeSettings) -> float:

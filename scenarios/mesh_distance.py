@@ -87,7 +87,7 @@ def _split(cells: dict, along_a_only: np.ndarray) -> dict:
     return {k: np.concatenate([c[k] for c in out]) for k in cells}
 
 
-def _facing(y: np.ndarray, backbone: np.ndarray, tangent: np.ndarray, disk: np.ndarray, r: float) -> np.ndarray:
+def _facing(y: np.ndarray, backbone: np.ndarray, tangent: np.ndarray, disk: np.ndarray, r) -> np.ndarray:
     """``|y - x*|``, x* the point of R facing y: on the lateral ring of ``backbone`` (its normal plane)
     or on the disk centred there (normal ``tangent``). All (C, 3) but disk (C,); returns (C,) m."""
     v = y - backbone
@@ -107,9 +107,9 @@ def _evaluate(index, pose: dict, cells: dict, upper: np.ndarray, spec: RobotSpec
     a farther mesh could not lower any bound below ``upper``: a capped distance is a lower bound.
     """
     centre, backbone, tangent, theta = cell_points(pose, cells["instant"], cells["link"], cells["coords"], spec)
-    half, disk = cells["half"], cells["disk"]
+    half, disk, r = cells["half"], cells["disk"], spec.radius_of(cells["link"])
     # every point of a lateral cell is within L dA + r of its backbone point, a disk cell's within r (w0 + dA)
-    reach = np.where(disk, spec.radius * (cells["coords"][:, 2] + half[:, 0]), spec.length * half[:, 0] + spec.radius)
+    reach = np.where(disk, r * (cells["coords"][:, 2] + half[:, 0]), spec.length * half[:, 0] + r)
     # one query per backbone point: the cells around a ring share it
     ring_id = cells["instant"].astype(np.int64) * spec.n_links + cells["link"]
     key = ring_id * 2 ** 32 + np.round(cells["coords"][:, 0].astype(np.float64) * 2 ** 30).astype(np.int64)
@@ -118,20 +118,20 @@ def _evaluate(index, pose: dict, cells: dict, upper: np.ndarray, spec: RobotSpec
     np.minimum.at(cap, shared, upper[cells["instant"]] + reach)
     to_backbone, near = index.distance(backbone[first], cap)
     to_backbone, near = to_backbone[shared], near[shared]
-    facing = _facing(near, backbone, tangent, disk, spec.radius)
+    facing = _facing(near, backbone, tangent, disk, r)
     facing = np.where(np.isnan(facing), np.inf, facing)
     upper = upper.copy()
     np.minimum.at(upper, cells["instant"], facing)
     best = upper[cells["instant"]]
     ring = to_backbone - reach
-    rho = path_radius(half, cells["coords"], disk, theta, spec)
+    rho = path_radius(half, cells["coords"], disk, theta, cells["link"], spec)
     # the centre only where the ring bound leaves the cell open
     at_centre = np.full(len(centre), np.inf)
     open_ = ring < best - tolerance(best)
     at_centre[open_], _ = index.distance(centre[open_], best[open_] + rho[open_])
     lipschitz = np.where(open_, at_centre - rho, -np.inf)
     # along u only while the ring bound leads and the cell is longer (in path length) than wide
-    long = (spec.length + theta * spec.radius) * half[:, 0] >= spec.radius * half[:, 1]
+    long = (spec.length + theta * r) * half[:, 0] >= r * half[:, 1]
     return np.minimum(at_centre, facing), np.maximum(lipschitz, ring), ~disk & (ring >= lipschitz) & long, centre, rho
 
 

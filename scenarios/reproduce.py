@@ -219,7 +219,7 @@ def inference_times_ms(model, points, repeats: int, seed: int = 0) -> list[float
     from ncedf import evaluate
     from ncedf.robot import RobotSpec, sample_arc_lengths
 
-    spec = RobotSpec(TIMING_LINKS, model.spec.length, model.spec.radius, model.spec.l_min, model.spec.l_max)
+    spec = RobotSpec(TIMING_LINKS, **model.spec.link_geometry())
     arc = sample_arc_lengths(jax.random.PRNGKey(seed), spec, (TIMING_LINKS,))
     return evaluate.inference_times_ms(model, points, arc, repeats)
 

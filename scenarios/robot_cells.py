@@ -57,14 +57,14 @@ def robot_pose(arc: jnp.ndarray, spec: RobotSpec) -> dict:
     return {"frames": forward_kinematics(arc, spec), "theta": theta, "phi": phi}
 
 
-def path_radius(half: np.ndarray, coords: np.ndarray, disk: np.ndarray, theta: np.ndarray,
+def path_radius(half: np.ndarray, coords: np.ndarray, disk: np.ndarray, theta: np.ndarray, link: np.ndarray,
                 spec: RobotSpec) -> np.ndarray:
-    """Path radius (C,) m of cells with half extents (C, 2), centres (C, 3) on links bent by theta (C,).
+    """Path radius (C,) m of cells with half extents (C, 2), centres (C, 3) on links (C,) bent by theta (C,).
 
     Lateral: ``|p_u| <= L + theta r``, ``|p_psi| = r``; disks: ``|p_w| = r``, ``|p_psi| = w r``.
     """
     da, db = half[:, 0], half[:, 1]
-    r = spec.radius
+    r = spec.radius_of(link)
     lateral = (spec.length + theta * r) * da + r * db
     return np.where(disk, r * da + r * (coords[:, 2] + da) * db, lateral)
 
@@ -76,7 +76,7 @@ def _cell_points_program(pose: dict, which: dict, coords: jnp.ndarray, spec: Rob
     phi = pose["phi"][which["instant"], which["link"]]
 
     def world(c):
-        return frame_to_world(frames, link_surface_points(c, theta, phi, spec))
+        return frame_to_world(frames, link_surface_points(c, theta, phi, spec, spec.radius_of(which["link"])))
 
     axis = coords * jnp.array([1.0, 0.0, 0.0], coords.dtype)
     backbone, tangent = jax.jvp(world, (axis,), (jnp.broadcast_to(jnp.array([1.0, 0.0, 0.0], coords.dtype),

@@ -301,3 +301,12 @@ def test_the_users_day_reads_the_recording_in_the_current_folder(tmp_path):
     (tmp_path / "runs").mkdir()  # a runs/ folder, where there is one, is the default
     done = subprocess.run(tool, cwd=tmp_path, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0 and "read 0 recordings under runs" in done.stderr
+
+
+def test_a_run_of_another_robot_or_scale_is_labelled_by_what_differs():
+    from analysis.load import robot_label
+
+    assert robot_label(pd.Series({"robot.length": 2.0, "robot.radius": 0.2})) == ""
+    small = pd.Series({"robot.length": 0.1, "robot.radius": 0.01, "settings.options": [["scale", "0.05"]]})
+    assert robot_label(small) == "L 0.1 m, r 0.01 m, scale 0.05"
+    assert robot_label(pd.Series({"robot.length": 2.0, "robot.radius": [0.25, 0.2, 0.15]})) == "r 0.25-0.15 m"

@@ -156,3 +156,21 @@ def test_cli_trains_a_small_robot_and_its_weights_name_it(tmp_path):
     val = load_dataset(ValidationConfig(4, 512, box_min=model.domain[0], box_max=model.domain[1]), model.spec)
     assert evaluate_model(model, val)["mae"] == pytest.approx(metrics["mae"], rel=1e-5)
     assert 0 < metrics["near_fraction"] < 0.5
+
+
+def test_cli_trains_a_tapered_robot_a_network_per_link(tmp_path):
+    from ncedf.model import load_model
+    from ncedf.train import evaluate_model
+
+    out = tmp_path / "tapered"
+    argv = ["--radius", "0.25", "0.15", "--layers", "2", "--width", "8", "--epochs", "1", "--configs", "4",
+            "--grid", "6", "--surface", "16", "--val-configs", "4", "--val-points", "512", "--out", str(out)]
+    assert main(argv) == 0
+    model = load_model(out)
+    assert model.spec == RobotSpec(2, radius=(0.25, 0.15))
+    per_link = [dict(m) for m in model.metadata["link_metrics"]]
+    for link, recorded in zip(model.links(), per_link):  # each network validated on its own link's exact distances
+        val = load_dataset(ValidationConfig(4, 512, box_min=model.domain[0], box_max=model.domain[1]), link.spec)
+        assert evaluate_model(link, val)["mae"] == pytest.approx(recorded["mae"], rel=1e-5)
+    assert dict(model.metadata["metrics"])["mae"] == max(m["mae"] for m in per_link)
+    assert len(model.metadata["history"]) == 2
