@@ -48,7 +48,7 @@ def inference_ms(model, links: int = 4, points: int = 500, repeats: int = 200, s
     """Median wall time (ms) of ``robot_distance`` for one configuration."""
     spec = RobotSpec(model.spec.n_links if model.spec.tapered else links, **model.spec.link_geometry())
     k_arc, k_pts = jax.random.split(jax.random.PRNGKey(seed))
-    arc = sample_arc_lengths(k_arc, spec, (links,))
+    arc = sample_arc_lengths(k_arc, spec, (spec.n_links,))
     pts = unit(spec) * jax.random.uniform(k_pts, (points, 3), minval=-4.0, maxval=8.0)
     return float(np.median(inference_times_ms(model, pts, arc, repeats)))
 

@@ -142,3 +142,16 @@ def test_the_judge_sees_each_links_own_radius(gap):
 
 def trimesh_box(centre, half):
     return trimesh.creation.box(extents=2 * np.asarray(half)).apply_translation(centre)
+
+
+def test_evaluate_reports_every_link_of_a_tapered_model(tmp_path, capsys):
+    from ncedf.evaluate import main
+
+    config = ModelConfig(2, 8)
+    params = stack_links([init_params(jax.random.PRNGKey(k), config) for k in range(3)])
+    save_model(tmp_path / "tapered", params, config, TAPERED, {})
+    assert main(["--model", str(tmp_path / "tapered"), "--configs", "2", "--points", "64"]) == 0
+    out = capsys.readouterr().out
+    assert [line.split(";")[0] for line in out.splitlines() if line.startswith("link:")] == [
+        f"link: L = 2 m, r = {r:g} m" for r in TAPERED.radii]
+    assert "one 3-link configuration" in out
