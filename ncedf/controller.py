@@ -214,7 +214,7 @@ class Controller:
         action, mppi, info = mppi_step(self.core_spec, self.config, self.core_shape, state.mppi, arc, goal, points,
                                        mask, model, guide)
         route, c = state.route, self.config
-        if c.recovery is not None and goal.shape == (3,):
+        if c.recovery is not None:
             action, route, mppi = supervise(c.recovery, self.core_spec, self.check_moves(arc, points, mask, model),
                                             c.mppi.safety_margin, c.mppi.control_bound, c.mppi.dt, route, mppi,
                                             arc, goal, model, action, guide)
@@ -229,11 +229,12 @@ class Controller:
         inputs = self._inputs(state, arc, goal, obstacle_points)
         jax.block_until_ready(self._advance(state, *inputs))
         arc, goal, points, mask, model, guide = inputs
-        if self.config.recovery is None or goal.shape != (3,):
+        if self.config.recovery is None:
             return
         here = np.asarray(arc)
+        aligned = guide is not None or goal.shape == (4, 4)
         plan_route(self.core_spec, model, here, tips(here[None], self.core_spec)[0], state.mppi.key,
-                   self.config.recovery.route, None if guide is None else np.array([1.0, 0.0, 0.0]))
+                   self.config.recovery.route, np.array([1.0, 0.0, 0.0]) if aligned else None)
         jax.block_until_ready(self.check_moves(arc, points, mask, model)(jnp.zeros((2,) + arc.shape, jnp.float32)))
 
 

@@ -1,6 +1,6 @@
 """The recovery stage: a route round the static obstacles for a robot that MPPI leaves stuck.
 
-MPPI is local: where the way to a position goal first leads away from it (a
+MPPI is local: where the way to a goal first leads away from it (a
 goal right behind a box) every rollout's goal cost says stay, and the robot
 stalls. :func:`supervise` runs around the jitted MPPI step, the way a brax
 wrapper runs around an environment's step: when the core's stall count reaches
@@ -8,8 +8,9 @@ wrapper runs around an environment's step: when the core's stall count reaches
 ``tries`` plans per episode), it plans a route from the current state round
 the obstacle model's static polytopes (``ncedf.route``; the moving ones are
 left out) or its grid, unless the model left a static cluster out as not convex (the
-roadmap would not see that obstacle); with the guide's field its goal states
-arrive along the guided path (``ncedf.guide.approach``). Where the roadmap holds
+roadmap would not see that obstacle). Its goal states arrive along the goal's
+approach axis where the goal is a pose, else, with the guide's field, along the
+guided path (``ncedf.guide.approach``). Where the roadmap holds
 none, nothing changes. Else it executes the
 route: each step moves to the farthest route state within one step's bound
 (or towards the next, at the bound) if that move passes the safety check,
@@ -84,14 +85,18 @@ def plan_due(recovery: RouteRecovery, route: RouteState, stalled: int) -> bool:
 
 def start_route(recovery: RouteRecovery, spec: RobotSpec, route: RouteState, mppi: MPPIState, arc, goal,
                 model, guide=None) -> tuple[RouteState, MPPIState]:
-    """Plan a route from ``arc`` (M, 3) to the position ``goal`` (3,) round the still part of the
-    fitted obstacle model (``ncedf.obstacle_model.static_part``), with the guide's field (if any)
-    arriving along its path (``ncedf.guide.approach``)."""
+    """Plan a route from ``arc`` (M, 3) to ``goal`` round the still part of the fitted obstacle model
+    (``ncedf.obstacle_model.static_part``): to a pose (4, 4) along its approach axis (its z axis), to
+    a position (3,) along the guide's path where there is a guide (``ncedf.guide.approach``)."""
     arc, goal = np.asarray(arc), np.asarray(goal)
-    direction = None if guide is None else approach(guide, tips(arc[None], spec)[0], goal,
-                                                    recovery.route.approach_back)
+    pose = goal.shape == (4, 4)
+    if pose:
+        goal, direction = goal[:3, 3], goal[:3, 2]
+    else:
+        direction = None if guide is None else approach(guide, tips(arc[None], spec)[0], goal,
+                                                        recovery.route.approach_back)
     path = plan_route(spec, static_part(model), arc, goal, jax.random.fold_in(mppi.key, ROUTE_SALT),
-                      recovery.route, direction)
+                      recovery.route, direction, aligned_only=pose)
     if path is None:  # the stall count goes on, and with it the stall escape
         return route._replace(routes=route.routes + 1), mppi
     keep = np.unique(np.linspace(0, len(path) - 1, ROUTE_CAPACITY).round().astype(int))
@@ -120,7 +125,8 @@ def supervise(recovery: RouteRecovery, spec: RobotSpec, check_moves, margin: flo
     Args:
       check_moves: ``moves (2, M, 3) -> (2,)`` clearance over the step, m.
       margin: the clearance a move needs, m.
-      mppi: the state after MPPI's step.  arc: (M, 3) m.  goal: (3,) m.  guide: the guide's field or None.
+      mppi: the state after MPPI's step.  arc: (M, 3) m.  goal: position (3,) or pose (4, 4), m.
+      guide: the guide's field or None.
     Returns:
       (action (M, 3) m/s, RouteState, MPPIState).
     """

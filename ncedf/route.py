@@ -336,18 +336,20 @@ def lazy_shortest_path(nodes: np.ndarray, i: np.ndarray, j: np.ndarray, w: np.nd
 
 
 def plan_route(spec: RobotSpec, polytopes: Polytopes, start, goal, key, config: RouteConfig = RouteConfig(),
-               approach=None) -> np.ndarray | None:
+               approach=None, aligned_only: bool = False) -> np.ndarray | None:
     """(S, M, 3) the states of a route from the state ``start`` (M, 3) m to one whose tip reaches ``goal`` (3,) m,
     clear of the polytopes, ``path_step`` apart (module docstring), or None when the roadmap holds none.
     ``key``: jax.random key of the samples; ``approach``: None or the unit vector (3,) the tip should
-    arrive along (aligned goal states and their retraction chains)."""
+    arrive along (aligned goal states and their retraction chains); ``aligned_only``: the route must
+    end in an aligned goal state (the approach axis is part of the goal: a pose)."""
     start = np.asarray(start, np.float32)
     goal = np.asarray(goal, np.float64)
     drawn = np.asarray(sample_arc_lengths(key, spec, (config.samples, spec.n_links)), np.float32)
     free = drawn[clearances(drawn, spec, polytopes) >= config.node_clearance]
     if len(free) == 0:
         return None
-    targets, chains = goal_states(free, goal, spec, polytopes, config), free[:0]
+    chains = free[:0]
+    targets = chains if aligned_only else goal_states(free, goal, spec, polytopes, config)
     if approach is not None:
         aligned = goal_states(free, goal, spec, polytopes, config, np.asarray(approach, np.float64))
         chains = retraction_chains(aligned, goal, np.asarray(approach, np.float64), spec, polytopes, config)

@@ -15,10 +15,10 @@ from ncedf.convex import fit_polytopes
 from ncedf.mppi import MPPIConfig
 from ncedf.obstacle_model import ConvexModel
 from ncedf.recovery import RouteRecovery, RouteState
-from ncedf.robot import RobotSpec, sample_arc_lengths, validate_state
+from ncedf.robot import RobotSpec, config_to_arc_lengths, end_effector_pose, sample_arc_lengths, validate_state
 from ncedf.safety import SafetyFilter
-from ncedf.route import (RouteConfig, around, between, clearances, goal_states, lazy_shortest_path, plan_route,
-                         roadmap_edges, shortest_path, tips)
+from ncedf.route import (RouteConfig, around, between, clearances, ends, goal_states, lazy_shortest_path,
+                         plan_route, roadmap_edges, shortest_path, tips)
 from ncedf.shapes import make_shape
 from scenarios.observe import make_observer
 from scenarios.truth import true_distances_batch
@@ -242,12 +242,20 @@ def test_no_route_where_the_model_left_an_obstacle_out(cloud):
     assert after.route.routes == 1  # the control: the bar alone gets its route
 
 
-def test_a_pose_goal_plans_no_route(cloud):
+def test_a_pose_goals_route_arrives_along_its_approach_axis(cloud):
+    """The pose of link 1 bent by 1 rad towards +x and link 2 straight (its tip beyond the bar, clear
+    of it): the route ends with the tip at the pose's position and its axis along the pose's."""
     mppi = _controller()
-    pose = np.eye(4)
-    pose[:3, 3] = GOAL
+    arc = np.stack([np.asarray(config_to_arc_lengths(1.0, 0.0, SPEC.link(0))), np.full(3, 2.0)])
+    pose = np.asarray(end_effector_pose(jnp.asarray(arc), SPEC), np.float64)
+    assert _exact(arc[None])[0] > 0.1
     _, after, _ = mppi.step(_stalled(mppi.init(jax.random.PRNGKey(0)), 50), START, pose, cloud)
-    assert after.route.routes == 0
+    route = after.route.states
+    assert after.route.routes == 1 and len(route) >= 2
+    axis, tip = ends(route[-1:], SPEC)
+    assert np.linalg.norm(tip[0] - pose[:3, 3]) <= ROUTE.goal_tolerance
+    assert ROUTE.approach_weight * np.linalg.norm(axis[0] - pose[:3, 2]) <= ROUTE.goal_tolerance
+    assert _exact(route).min() > 0.0
 
 
 def test_route_settings_are_validated():
