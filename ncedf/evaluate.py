@@ -18,6 +18,7 @@ import time
 import jax
 import numpy as np
 
+from ncedf.compile_cache import enable_compile_cache
 from ncedf.data import ValidationConfig, load_dataset
 from ncedf.metrics import NEAR_FIELD
 from ncedf.model import ModelError, load_model
@@ -76,7 +77,9 @@ def main(argv=None) -> int:
     p.add_argument("--configs", type=int, default=100, help="validation configurations (default 100)")
     p.add_argument("--points", type=int, default=4096, help="random points per configuration (default 4096)")
     p.add_argument("--seed", type=int, default=12345, help="validation seed")
+    p.add_argument("--no-cache", action="store_true", help="compile afresh, without the persistent compilation cache")
     args = p.parse_args(argv)
+    enable_compile_cache(not args.no_cache)
     try:
         model = load_model(args.model)
         val_cfg = ValidationConfig(n_configs=args.configs, n_points=args.points, seed=args.seed,

@@ -33,6 +33,7 @@ import numpy as np
 import optax
 from tqdm import tqdm
 
+from ncedf.compile_cache import enable_compile_cache
 from ncedf.data import BOX_MAX, BOX_MIN, DatasetConfig, LinkDataset, ValidationConfig, load_dataset
 from ncedf.metrics import NEAR_FIELD, distance_metrics
 from ncedf.model import ENCODINGS, MLP, NCEDF, OUTPUTS, ModelConfig, encode, init_params, save_model, stack_links
@@ -282,6 +283,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--out", required=True, help="output stem: writes OUT.msgpack and OUT.json")
     p.add_argument("--record", metavar="STEM", help="also record the run (per-epoch /metrics) to STEM.rrd and STEM.mcap")
     p.add_argument("--overwrite", action="store_true", help="overwrite existing weights and recording")
+    p.add_argument("--no-cache", action="store_true", help="compile afresh, without the persistent compilation cache")
     return p.parse_args(argv)
 
 
@@ -343,6 +345,7 @@ def _one(values: list):
 
 def main(argv=None) -> int:
     args = parse_args(argv)
+    enable_compile_cache(not args.no_cache)
     try:
         spec, model_cfg, cfg, data_cfg, val_cfg = _configs(args)
     except ValueError as exc:

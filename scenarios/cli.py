@@ -22,6 +22,7 @@ import warnings
 from pathlib import Path
 from typing import Callable
 
+from ncedf.compile_cache import enable_compile_cache
 from ncedf.presets import DEFAULT, PRESETS, SUMMARIES
 from recorder import RecorderError
 from recorder.cli import EXIT_STATUS, OneLineParser, Stopped, stop_on_signals
@@ -62,6 +63,8 @@ def make_parser(scenario: str, description: str, *, links: int = 4, max_steps: i
     p.add_argument("--mesh-every", type=int, default=1, help="record the robot mesh every N steps (default 1)")
     p.add_argument("--overwrite", action="store_true", help="replace existing recordings")
     p.add_argument("--viewer", action="store_true", help="also stream live to a Rerun viewer")
+    p.add_argument("--no-cache", action="store_true",
+                   help="compile afresh, without the persistent compilation cache (ncedf.compile_cache)")
     return p
 
 
@@ -129,6 +132,7 @@ def run_cli(parser: argparse.ArgumentParser, argv: list[str] | None,
 def _run(parser: argparse.ArgumentParser, argv: list[str] | None,
          make_settings: Callable[[argparse.Namespace], EpisodeSettings]) -> int:
     args = parser.parse_args(argv)
+    enable_compile_cache(not args.no_cache)
     try:
         with stop_on_signals():
             try:

@@ -1,0 +1,65 @@
+"""The persistent compilation cache: where it lives, the switch that turns it off, and that a compiled
+program lands in it and is read back by a fresh compilation."""
+
+import jax
+import jax.numpy as jnp
+import pytest
+
+from ncedf.compile_cache import ENV_SWITCH, cache_folder, enable_compile_cache
+
+OPTIONS = ("jax_compilation_cache_dir", "jax_persistent_cache_min_compile_time_secs",
+           "jax_persistent_cache_enable_xla_caches")
+
+
+@pytest.fixture
+def restored_config():
+    before = {name: getattr(jax.config, name) for name in OPTIONS}
+    yield
+    for name, value in before.items():
+        jax.config.update(name, value)
+
+
+def test_the_folder_is_under_the_projects_cache_and_names_jax_and_the_platform(tmp_path, monkeypatch):
+    monkeypatch.setenv("NCEDF_CACHE", str(tmp_path))
+    folder = cache_folder()
+    assert folder.parent == tmp_path / "xla"
+    assert folder.name.startswith(f"jax{jax.__version__}-{jax.default_backend()}-")
+
+
+@pytest.mark.parametrize("value", ["0", "off", "False"])
+def test_the_environment_or_the_flag_turns_it_off(tmp_path, monkeypatch, restored_config, value):
+    monkeypatch.setenv("NCEDF_CACHE", str(tmp_path))
+    before = jax.config.jax_compilation_cache_dir
+    assert enable_compile_cache(on=False) is None
+    monkeypatch.setenv(ENV_SWITCH, value)
+    assert enable_compile_cache() is None
+    assert jax.config.jax_compilation_cache_dir == before and not (tmp_path / "xla").exists()
+
+
+def test_a_compiled_program_is_written_and_read_back(tmp_path, monkeypatch, restored_config):
+    monkeypatch.setenv("NCEDF_CACHE", str(tmp_path))
+    monkeypatch.delenv(ENV_SWITCH, raising=False)
+    folder = enable_compile_cache()
+    assert folder == cache_folder() and jax.config.jax_compilation_cache_dir == str(folder)
+
+    def program(x):
+        return jnp.sin(x) * 3.25 + jnp.cumsum(x)  # a computation no other test compiles
+
+    x = jnp.arange(7, dtype=jnp.float32)
+    expected = jax.jit(program)(x)
+    written = sorted(folder.glob("jit_program-*"))
+    assert len(written) == 1, "the program was not written to the cache"
+    stamp = written[0].stat().st_mtime_ns
+    hits = []
+
+    def listen(event, **_):
+        hits.append(event)
+
+    jax.monitoring.register_event_listener(listen)
+    try:
+        jax.clear_caches()  # a fresh compilation, as in a new process: served from the folder
+        assert jnp.array_equal(jax.jit(program)(x), expected)
+    finally:
+        jax.monitoring.unregister_event_listener(listen)
+    assert "/jax/compilation_cache/cache_hits" in hits
+    assert sorted(folder.glob("jit_program-*")) == written and written[0].stat().st_mtime_ns == stamp
