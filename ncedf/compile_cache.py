@@ -17,6 +17,7 @@ import platform
 from pathlib import Path
 
 import jax
+from jax.experimental.compilation_cache.compilation_cache import reset_cache
 
 from ncedf.data import cache_dir
 
@@ -49,8 +50,9 @@ def enabled() -> bool:
 
 def enable_compile_cache(on: bool = True) -> Path | None:
     """Point JAX's persistent compilation cache at :func:`cache_folder` (every program, however quick
-    to compile); nothing where ``on`` is False or the environment turns it off. Call before the first
-    compilation. Returns the folder, or None."""
+    to compile); nothing where ``on`` is False or the environment turns it off. JAX decides whether
+    to use a cache at its first compilation; a process that compiled before is made to decide again.
+    Returns the folder, or None."""
     if not (on and enabled()):
         return None
     folder = cache_folder()
@@ -59,4 +61,5 @@ def enable_compile_cache(on: bool = True) -> Path | None:
     # Else JAX also points XLA's GPU autotuning cache into the folder, which puts the folder's path into
     # every program's key (a copied cache would never hit).
     jax.config.update("jax_persistent_cache_enable_xla_caches", "none")
+    reset_cache()
     return folder

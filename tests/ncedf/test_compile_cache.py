@@ -5,6 +5,8 @@ import jax
 import jax.numpy as jnp
 import pytest
 
+from jax.experimental.compilation_cache.compilation_cache import reset_cache
+
 from ncedf.compile_cache import ENV_SWITCH, cache_folder, enable_compile_cache
 
 OPTIONS = ("jax_compilation_cache_dir", "jax_persistent_cache_min_compile_time_secs",
@@ -17,6 +19,7 @@ def restored_config():
     yield
     for name, value in before.items():
         jax.config.update(name, value)
+    reset_cache()  # the worker's later compilations decide again, without the folder
 
 
 def test_the_folder_is_under_the_projects_cache_and_names_jax_and_the_platform(tmp_path, monkeypatch):
