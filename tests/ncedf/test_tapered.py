@@ -155,3 +155,15 @@ def test_evaluate_reports_every_link_of_a_tapered_model(tmp_path, capsys):
     assert [line.split(";")[0] for line in out.splitlines() if line.startswith("link:")] == [
         f"link: L = 2 m, r = {r:g} m" for r in TAPERED.radii]
     assert "one 3-link configuration" in out
+
+
+def test_a_runner_given_a_tapered_model_for_other_links_says_which(tmp_path):
+    from scenarios.episode import EpisodeSettings, robot_spec
+
+    config = ModelConfig(2, 8)
+    save_model(tmp_path / "tapered", stack_links([init_params(jax.random.PRNGKey(k), config) for k in range(3)]),
+               config, TAPERED, {})
+    settings = EpisodeSettings(scenario="cluttered", links=3, seed=0, model=str(tmp_path / "tapered"))
+    assert robot_spec(settings) == TAPERED
+    with pytest.raises(ValueError, match="a tapered robot of 3 links, not 4: run it with --links 3"):
+        robot_spec(EpisodeSettings(scenario="cluttered", links=4, seed=0, model=str(tmp_path / "tapered")))
