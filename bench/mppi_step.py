@@ -83,7 +83,7 @@ def compiled_step(m, *args):
 
 
 def run(links, rep, args, model, points):
-    spec = RobotSpec(links)
+    spec = RobotSpec(links) if model is None else RobotSpec(links, **model.spec.link_geometry())  # the model's robot
     horizon = args.horizon if (links <= 6 or args.same_horizon) else args.horizon_long
     base = dict(samples=args.samples, horizon=horizon, max_points=max(len(points), 1))
     shape = build_shape(rep, spec, model)
