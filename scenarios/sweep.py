@@ -472,23 +472,7 @@ def run_sweep(
     """
     from scenarios.episode import episode_name
 
-    formats = tuple(formats)
-    if not formats or set(formats) - set(FORMATS):
-        raise ValueError(f"formats must be a non-empty subset of {', '.join(FORMATS)}, got {','.join(formats)!r}")
-    if executor not in EXECUTORS:
-        raise ValueError(f"executor must be one of {', '.join(EXECUTORS)}, got {executor!r}")
-    workers = _cpu_count() if workers is None else workers
-    for name, value in (("workers", workers), ("recycle", recycle)):
-        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-            raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
-    repeated = [name for name, n in Counter(map(episode_name, episodes)).items() if n > 1]
-    if repeated:
-        raise ValueError(f"episode {repeated[0]} is given more than once (a repeated value?)")
-    out = Path(out).resolve()
-    existing = next(p for p in (out, *out.parents) if p.exists())
-    if not existing.is_dir() or not os.access(existing, os.W_OK | os.X_OK):
-        raise ValueError(f"cannot write recordings to {out}: {existing} is not a writable folder")
-
+    formats, workers, out = _checked_arguments(episodes, out, formats, executor, workers, recycle)
     start = time.perf_counter()
     report = SweepReport(out, [EpisodeStatus(s) for s in episodes], executor)
     for episode in report.episodes:
@@ -507,10 +491,42 @@ def run_sweep(
         check_configurations(list(todo))
     log(f"{len(report.episodes)} episodes in {out}: {report.count('skipped')} complete, {len(todo)} to run "
         f"({report.where})")
-    if not todo:
-        report.seconds = time.perf_counter() - start
-        return report
+    if todo:
+        _run_todo(report, todo, out, formats, workers, address, recycle, progress, jax_cache, log)
+    report.seconds = time.perf_counter() - start
+    return report
 
+
+def _checked_arguments(episodes, out, formats, executor: str, workers, recycle) -> tuple[tuple, int, Path]:
+    """``run_sweep``'s formats, worker count and resolved output folder; ValueError naming a bad one."""
+    from scenarios.episode import episode_name
+
+    formats = tuple(formats)
+    if not formats or set(formats) - set(FORMATS):
+        raise ValueError(f"formats must be a non-empty subset of {', '.join(FORMATS)}, got {','.join(formats)!r}")
+    if executor not in EXECUTORS:
+        raise ValueError(f"executor must be one of {', '.join(EXECUTORS)}, got {executor!r}")
+    workers = _cpu_count() if workers is None else workers
+    for name, value in (("workers", workers), ("recycle", recycle)):
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+    repeated = [name for name, n in Counter(map(episode_name, episodes)).items() if n > 1]
+    if repeated:
+        raise ValueError(f"episode {repeated[0]} is given more than once (a repeated value?)")
+    out = Path(out).resolve()
+    existing = next(p for p in (out, *out.parents) if p.exists())
+    if not existing.is_dir() or not os.access(existing, os.W_OK | os.X_OK):
+        raise ValueError(f"cannot write recordings to {out}: {existing} is not a writable folder")
+    return formats, workers, out
+
+
+def _run_todo(report: SweepReport, todo: dict, out: Path, formats: tuple, workers: int, address, recycle: int,
+              progress: bool, jax_cache, log) -> None:
+    """Run the ``todo`` episodes (settings -> EpisodeStatus) on the report's executor, updating their
+    statuses and the report's signal or error."""
+    from scenarios.episode import episode_name
+
+    executor = report.executor
     with tqdm(total=len(todo), unit="episode", disable=not progress, dynamic_ncols=True) as bar:
         def on_done(settings: EpisodeSettings, seconds: float, error: str | None) -> None:
             episode = todo[settings]
@@ -539,8 +555,6 @@ def run_sweep(
             episode.recorded = read_complete(out / episode_name(episode.settings), formats)
             if episode.recorded is not None:
                 episode.state = "run"
-    report.seconds = time.perf_counter() - start
-    return report
 
 
 # ---------------------------------------------------------------- summary
