@@ -77,23 +77,10 @@ PAPER_EPOCHS = 100
 
 
 @dataclasses.dataclass(frozen=True)
-class Budget:
-    """How big each experiment is.
-
-    Attributes:
-      epochs: training epochs per network.
-      configs, grid, surface: training set (configurations, grid points per axis, surface points).
-      val_configs, val_points, val_surface: validation set.
-      timing_repeats: timed inference calls and MPPI steps per network (after compilation).
-      timing_samples, timing_horizon: MPPI setting of the step timing.
-      envs, envs_5000: Table III environments (pointcloud:5000: its own count).
-      seeds: Table IV controller seeds, and the worlds' environment seeds.
-      samples, horizon, max_steps: episode overrides (None: the controller's and scenario's).
-      workers: sweep worker processes (None: one per core).
-      layers, widths: the Table I grid.
-      timing_shapes, timing_links, timing_points: the MPPI timing experiment's grid.
-      quick: a smoke-sized run.
-    """
+class NetworkBudget:
+    """Tables I and II: ``epochs`` per network; the training set (``configs`` configurations,
+    ``grid`` points per axis, ``surface`` points); the validation set (``val_configs``, ``val_points``,
+    ``val_surface``); the grid of ``layers`` and ``widths``."""
 
     epochs: int = PAPER_EPOCHS
     configs: int = 250
@@ -102,9 +89,30 @@ class Budget:
     val_configs: int = 100
     val_points: int = 4096
     val_surface: int = 256
-    timing_repeats: int = 20
-    timing_samples: int = TIMING_SAMPLES
-    timing_horizon: int = TIMING_HORIZON
+    layers: tuple[int, ...] = LAYERS
+    widths: tuple[int, ...] = WIDTHS
+
+
+@dataclasses.dataclass(frozen=True)
+class TimingBudget:
+    """The timings: ``repeats`` timed calls per network or case (after compilation), the MPPI step's
+    ``samples`` and ``horizon``, and the timing experiment's grid (``shapes`` by ``links`` at
+    ``INFERENCE_POINTS`` points, and by ``points`` at ``TIMING_LINKS`` links)."""
+
+    repeats: int = 20
+    samples: int = TIMING_SAMPLES
+    horizon: int = TIMING_HORIZON
+    shapes: tuple[str, ...] = TIMING_SHAPES
+    links: tuple[int, ...] = TIMING_LINK_COUNTS
+    points: tuple[int, ...] = TIMING_POINT_COUNTS
+
+
+@dataclasses.dataclass(frozen=True)
+class EpisodeBudget:
+    """The episodes: Table III ``envs`` (``envs_5000`` for pointcloud:5000), Table IV's controller
+    ``seeds`` and the worlds' environment seeds, overrides of every episode's ``samples``, ``horizon``
+    and ``max_steps`` (None: the controller's and scenario's), and sweep ``workers`` (None: one per core)."""
+
     envs: int = 200
     envs_5000: int = 50
     seeds: int = 10
@@ -112,19 +120,25 @@ class Budget:
     horizon: int | None = None
     max_steps: int | None = None
     workers: int | None = None
-    layers: tuple[int, ...] = LAYERS
-    widths: tuple[int, ...] = WIDTHS
-    timing_shapes: tuple[str, ...] = TIMING_SHAPES
-    timing_links: tuple[int, ...] = TIMING_LINK_COUNTS
-    timing_points: tuple[int, ...] = TIMING_POINT_COUNTS
+
+
+@dataclasses.dataclass(frozen=True)
+class Budget:
+    """How big each experiment is; ``quick``: a smoke-sized run."""
+
+    networks: NetworkBudget = NetworkBudget()
+    timing: TimingBudget = TimingBudget()
+    episodes: EpisodeBudget = EpisodeBudget()
     quick: bool = False
 
 
-QUICK = Budget(epochs=1, configs=20, grid=12, surface=200, val_configs=10, val_points=512, val_surface=32,
-               timing_repeats=3, timing_samples=64, timing_horizon=8, envs=1, envs_5000=1, seeds=1,
-               samples=64, horizon=8, max_steps=10, layers=(2, 4), widths=(16,),
-               timing_shapes=("ncedf", "spheres", "pointcloud:1000"), timing_links=(4, 7), timing_points=(250, 1000),
-               quick=True)
+QUICK = Budget(
+    NetworkBudget(epochs=1, configs=20, grid=12, surface=200, val_configs=10, val_points=512, val_surface=32,
+                  layers=(2, 4), widths=(16,)),
+    TimingBudget(repeats=3, samples=64, horizon=8, shapes=("ncedf", "spheres", "pointcloud:1000"), links=(4, 7),
+                 points=(250, 1000)),
+    EpisodeBudget(envs=1, envs_5000=1, seeds=1, samples=64, horizon=8, max_steps=10),
+    quick=True)
 
 
 def folder(out: Path, table: str, budget: Budget) -> Path:
@@ -157,8 +171,8 @@ def networks(table: str, budget: Budget) -> list[Network]:
     from ncedf.train import TrainConfig
 
     if table == "table1":
-        return [Network(l, w, e, TrainConfig.lambda_over) for e in ENCODINGS for l in budget.layers
-                for w in budget.widths]
+        return [Network(l, w, e, TrainConfig.lambda_over) for e in ENCODINGS for l in budget.networks.layers
+                for w in budget.networks.widths]
     layers, width = TABLE2_NETWORK
     from ncedf.model import ModelConfig
 
@@ -183,7 +197,7 @@ def timing_points(n_points: int, seed: int = 0):
 
 def mppi_step_ms(model, points, budget: Budget, seed: int = 0, shape: str = "ncedf",
                  links: int = TIMING_LINKS) -> list[float]:
-    """Wall times (ms) of ``budget.timing_repeats`` MPPI steps after compilation from the straight state
+    """Wall times (ms) of ``budget.timing.repeats`` MPPI steps after compilation from the straight state
     towards the cluttered scene's goal (``model``: the N-CEDF for shape ncedf, else unused)."""
     import jax
     import jax.numpy as jnp
@@ -196,15 +210,15 @@ def mppi_step_ms(model, points, budget: Budget, seed: int = 0, shape: str = "nce
     from scenarios.cluttered import GOAL
 
     spec = RobotSpec(links)
-    config = preset("paper", spec, Observation(len(points)), samples=budget.timing_samples,
-                    horizon=budget.timing_horizon)
+    config = preset("paper", spec, Observation(len(points)), samples=budget.timing.samples,
+                    horizon=budget.timing.horizon)
     mppi = Controller(spec, make_shape(shape, spec, model=model) if shape == "ncedf" else make_shape(shape, spec), config)
     state = mppi.init(jax.random.PRNGKey(seed))
     arc = jnp.asarray(spec.straight_state(), jnp.float32)
     goal = jnp.asarray(GOAL, jnp.float32)
     jax.block_until_ready(mppi.step(state, arc, goal, points))
     times = []
-    for _ in range(budget.timing_repeats):
+    for _ in range(budget.timing.repeats):
         start = time.perf_counter()
         action, state, _ = jax.block_until_ready(mppi.step(state, arc, goal, points))
         times.append(1e3 * (time.perf_counter() - start))
@@ -233,25 +247,25 @@ def train_network(net: Network, where: Path, budget: Budget, data, val, points, 
 
     spec = RobotSpec(n_links=1)
     model_cfg = ModelConfig(net.layers, net.width, net.encoding)
-    cfg = TrainConfig(epochs=budget.epochs, lambda_over=net.lambda_over, seed=seed)
+    cfg = TrainConfig(epochs=budget.networks.epochs, lambda_over=net.lambda_over, seed=seed)
     meta = {"run_id": f"{where.name}/{net.name}", "scenario": "training",
             "experiment": where.name.removesuffix("-quick"), "quick": budget.quick,
             "network": dataclasses.asdict(net), "architecture": dataclasses.asdict(model_cfg),
             "training": dataclasses.asdict(cfg), "dataset": {"hash": data.key, "samples": data.n_samples},
             "validation": {"hash": val.key, "samples": int(val.distances.size)},
             "timing": {"links": TIMING_LINKS, "inference_points": int(len(points)),
-                       "mppi_samples": budget.timing_samples, "mppi_horizon": budget.timing_horizon,
-                       "mppi_points": int(len(points)), "repeats": budget.timing_repeats}}
+                       "mppi_samples": budget.timing.samples, "mppi_horizon": budget.timing.horizon,
+                       "mppi_points": int(len(points)), "repeats": budget.timing.repeats}}
     with Recorder(where / net.name, meta, ("mcap",), overwrite=True) as rec:
         def record(row):
             rec.log_step(row["epoch"], float(row["epoch"]),
                          metrics={k: float(v) for k, v in row.items() if k != "epoch"})
 
         model, history = train(model_cfg, cfg, data, val, spec, progress=False, on_epoch=record)
-        inference = inference_times_ms(model, points, budget.timing_repeats, seed)
+        inference = inference_times_ms(model, points, budget.timing.repeats, seed)
         mppi = mppi_step_ms(model, points, budget, seed)
         for i, (a, b) in enumerate(zip(inference, mppi)):
-            step = budget.epochs + 1 + i
+            step = budget.networks.epochs + 1 + i
             rec.log_step(step, float(step), metrics={"inference_ms": a, "mppi_step_ms": b})
         save_model(where / net.name, model.params, model_cfg, spec,
                    {"metrics": {k: v for k, v in history[-1].items() if k != "epoch"}}, model.domain)
@@ -268,8 +282,8 @@ def run_networks(table: str, out: Path, budget: Budget, seed: int, command: str)
 
     where = folder(out, table, budget)
     todo = [n for n in networks(table, budget) if read_complete(where / n.name, ("mcap",)) is None]
-    data_cfg = DatasetConfig(n_configs=budget.configs, grid=budget.grid, n_surface=budget.surface, seed=seed)
-    val_cfg = ValidationConfig(n_configs=budget.val_configs, n_points=budget.val_points, n_surface=budget.val_surface)
+    data_cfg = DatasetConfig(n_configs=budget.networks.configs, grid=budget.networks.grid, n_surface=budget.networks.surface, seed=seed)
+    val_cfg = ValidationConfig(n_configs=budget.networks.val_configs, n_points=budget.networks.val_points, n_surface=budget.networks.val_surface)
     write_manifest(where, table, budget, command, {"dataset": dataclasses.asdict(data_cfg),
                                                    "validation": dataclasses.asdict(val_cfg), "seed": seed})
     print(f"{table}: {len(networks(table, budget))} networks in {where}, {len(todo)} to train", file=sys.stderr)
@@ -291,18 +305,19 @@ def sweep_episodes(table: str, budget: Budget):
 
     controllers = tuple(PRESETS)
 
-    common = {k: v for k, v in (("samples", budget.samples), ("horizon", budget.horizon),
-                                ("max_steps", budget.max_steps)) if v is not None}
+    common = {k: v for k, v in (("samples", budget.episodes.samples), ("horizon", budget.episodes.horizon),
+                                ("max_steps", budget.episodes.max_steps)) if v is not None}
     if table == "table3":
         small = [s for s in TABLE3_SHAPES if s != "pointcloud:5000"]
-        return (sweep_settings(["spheres"], [4], small, controllers, budget.envs, 1, **common)
-                + sweep_settings(["spheres"], [4], ["pointcloud:5000"], controllers, budget.envs_5000, 1, **common))
+        return (sweep_settings(["spheres"], [4], small, controllers, budget.episodes.envs, 1, **common)
+                + sweep_settings(["spheres"], [4], ["pointcloud:5000"], controllers, budget.episodes.envs_5000, 1,
+                                 **common))
     if table == "worlds":
         from scenarios import WORLDS
 
-        return sweep_settings(list(WORLDS), list(TABLE4_LINKS), ["ncedf"], WORLD_CONTROLLERS, budget.seeds, 1,
+        return sweep_settings(list(WORLDS), list(TABLE4_LINKS), ["ncedf"], WORLD_CONTROLLERS, budget.episodes.seeds, 1,
                               **common)
-    return sweep_settings(["cluttered"], list(TABLE4_LINKS), ["ncedf"], controllers, 1, budget.seeds, **common)
+    return sweep_settings(["cluttered"], list(TABLE4_LINKS), ["ncedf"], controllers, 1, budget.episodes.seeds, **common)
 
 
 def run_episodes(table: str, out: Path, budget: Budget, seed: int, command: str) -> int:
@@ -314,7 +329,7 @@ def run_episodes(table: str, out: Path, budget: Budget, seed: int, command: str)
     where = folder(out, table, budget)
     episodes = sweep_episodes(table, budget)
     write_manifest(where, table, budget, command, {"controllers": list(controllers), "episodes": len(episodes)})
-    report = run_sweep(episodes, where, workers=budget.workers)
+    report = run_sweep(episodes, where, workers=budget.episodes.workers)
     if report.signum is not None:
         return report.exit_status
     print(summary_table(report), file=sys.stderr)
@@ -324,8 +339,8 @@ def run_episodes(table: str, out: Path, budget: Budget, seed: int, command: str)
 # ---------------------------------------------------------------- MPPI step time per representation
 def timing_cases(budget: Budget) -> list[tuple[str, int, int]]:
     """(shape, links, points): link counts at INFERENCE_POINTS points, point counts at TIMING_LINKS links."""
-    cases = [(s, l, INFERENCE_POINTS) for s in budget.timing_shapes for l in budget.timing_links]
-    cases += [(s, TIMING_LINKS, p) for s in budget.timing_shapes for p in budget.timing_points]
+    cases = [(s, l, INFERENCE_POINTS) for s in budget.timing.shapes for l in budget.timing.links]
+    cases += [(s, TIMING_LINKS, p) for s in budget.timing.shapes for p in budget.timing.points]
     return list(dict.fromkeys(cases))
 
 
@@ -350,12 +365,12 @@ def run_timing(out: Path, budget: Budget, seed: int, command: str) -> int:
         points = timing_points(n_points, seed)
         meta = {"run_id": f"{where.name}/{name[case]}", "scenario": "timing", "quick": budget.quick, "shape": shape,
                 "links": links, "observed_points": n_points, "controller": "paper",
-                "mppi": {"samples": budget.timing_samples, "horizon": budget.timing_horizon},
+                "mppi": {"samples": budget.timing.samples, "horizon": budget.timing.horizon},
                 "model": "shipped default"}
         with Recorder(where / name[case], meta, ("mcap",), overwrite=True) as rec:
             for i, ms in enumerate(mppi_step_ms(model, points, budget, seed, shape, links)):
                 rec.log_step(i, float(i), metrics={"solver_ms": ms})
-            rec.finish({"outcome": "success", "steps": budget.timing_repeats})
+            rec.finish({"outcome": "success", "steps": budget.timing.repeats})
     return 0
 
 
@@ -378,26 +393,36 @@ def parse_args(argv=None):
     p.add_argument("--out", default="runs", help="folder of the recordings (default runs/)")
     p.add_argument("--quick", action="store_true", help="a smoke-sized version of every experiment (minutes)")
     p.add_argument("--epochs", type=int, help=f"training epochs per network (default {PAPER_EPOCHS}, quick 1)")
-    p.add_argument("--envs", type=int, help=f"Table III environments per representation (default {Budget.envs})")
+    p.add_argument("--envs", type=int, help=f"Table III environments per representation (default {EpisodeBudget.envs})")
     p.add_argument("--envs-5000", type=int, help=f"Table III environments for pointcloud:5000 "
-                                                 f"(default {Budget.envs_5000})")
-    p.add_argument("--seeds", type=int, help=f"Table IV seeds (default {Budget.seeds})")
+                                                 f"(default {EpisodeBudget.envs_5000})")
+    p.add_argument("--seeds", type=int, help=f"Table IV seeds (default {EpisodeBudget.seeds})")
     p.add_argument("--timing-repeats", type=int,
-                   help=f"timed steps per network or timing case (default {Budget.timing_repeats}, "
-                        f"quick {QUICK.timing_repeats})")
+                   help=f"timed steps per network or timing case (default {TimingBudget.repeats}, "
+                        f"quick {QUICK.timing.repeats})")
     p.add_argument("--workers", type=int, help="sweep worker processes (default: one per core)")
     p.add_argument("--seed", type=int, default=0, help="training seed (default 0)")
     return p.parse_args(argv)
 
 
+#: The command-line options that override a budget: option -> (part of the budget, its field).
+OVERRIDES = {"epochs": ("networks", "epochs"), "envs": ("episodes", "envs"), "envs_5000": ("episodes", "envs_5000"),
+             "seeds": ("episodes", "seeds"), "workers": ("episodes", "workers"),
+             "timing_repeats": ("timing", "repeats")}
+
+
 def budget_from(args) -> Budget:
-    base = QUICK if args.quick else Budget()
-    changes = {k: getattr(args, k) for k in ("epochs", "envs", "envs_5000", "seeds", "workers", "timing_repeats")
-               if getattr(args, k) is not None}
-    for name, value in changes.items():
+    """The budget of the parsed options: the quick or full one, with the options given; ValueError
+    naming an option below 1."""
+    budget = QUICK if args.quick else Budget()
+    for option, (part, field) in OVERRIDES.items():
+        value = getattr(args, option)
+        if value is None:
+            continue
         if value < 1:
-            raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {value}")
-    return dataclasses.replace(base, **changes)
+            raise ValueError(f"--{option.replace('_', '-')} must be >= 1, got {value}")
+        budget = dataclasses.replace(budget, **{part: dataclasses.replace(getattr(budget, part), **{field: value})})
+    return budget
 
 
 def main(argv=None) -> int:

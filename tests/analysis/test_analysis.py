@@ -36,9 +36,11 @@ SPHERE_ENVS = 5
 OTHER_GOAL = "4.5,1.0,3.0"
 #: A goal position among the spheres.
 SPHERE_GOAL = "-4.0,0.0,4.0"
-TINY_BUDGET = dataclasses.replace(reproduce.QUICK, epochs=2, configs=4, grid=6, surface=20, val_configs=4,
-                                  val_points=64, val_surface=8, timing_repeats=3, timing_samples=16, timing_horizon=3,
-                                  timing_shapes=("spheres",), timing_links=(4, 5), timing_points=(250,))
+TINY_BUDGET = dataclasses.replace(
+    reproduce.QUICK,
+    networks=dataclasses.replace(reproduce.QUICK.networks, epochs=2, configs=4, grid=6, surface=20, val_configs=4,
+                                 val_points=64, val_surface=8),
+    timing=reproduce.TimingBudget(repeats=3, samples=16, horizon=3, shapes=("spheres",), links=(4, 5), points=(250,)))
 
 
 def sphere_settings(env: int, goal: str = "fixed") -> EpisodeSettings:
@@ -83,9 +85,9 @@ def folder(tmp_path_factory, cache):
         name = episode_name(settings)
         results[name] = (settings, run_episode(settings, sub / name, formats=("mcap",)))
     spec = RobotSpec(n_links=1)
-    data_cfg = DatasetConfig(n_configs=TINY_BUDGET.configs, grid=TINY_BUDGET.grid, n_surface=TINY_BUDGET.surface)
-    val_cfg = ValidationConfig(n_configs=TINY_BUDGET.val_configs, n_points=TINY_BUDGET.val_points,
-                               n_surface=TINY_BUDGET.val_surface)
+    nets = TINY_BUDGET.networks
+    data_cfg = DatasetConfig(n_configs=nets.configs, grid=nets.grid, n_surface=nets.surface)
+    val_cfg = ValidationConfig(n_configs=nets.val_configs, n_points=nets.val_points, n_surface=nets.val_surface)
     data, val = load_dataset(data_cfg, spec), load_dataset(val_cfg, spec)
     where = reproduce.folder(runs, "table2", TINY_BUDGET)
     reproduce.write_manifest(where, "table2", TINY_BUDGET, "test", {})
@@ -202,7 +204,7 @@ def test_table2_metrics_match_the_saved_networks(folder, tables):
         again = evaluate_model(model, val)
         for key in ("mae", "rmse", "moe", "over_p999"):
             assert getattr(row, key) == pytest.approx(again[key], rel=1e-4, abs=1e-6)
-        assert row.epochs == TINY_BUDGET.epochs and row.timing_repeats == TINY_BUDGET.timing_repeats
+        assert row.epochs == TINY_BUDGET.networks.epochs and row.timing_repeats == TINY_BUDGET.timing.repeats
         assert row.inference_ms_mean > 0 and row.mppi_step_ms_mean > 0 and row.quick
     assert "(quick)" in (out / "table2.md").read_text() and "0.017 / 0.024 / 0.002" in done.stdout
 
@@ -240,7 +242,7 @@ def test_figures_and_their_data(folder, tmp_path):
         assert (tmp_path / f"{name}.csv").is_file(), name
     assert "no 5-link cluttered recordings" in done.stderr
     links = pd.read_csv(tmp_path / "mppi_time_vs_links.csv")
-    assert list(links["links"]) == [4, 5] and (links["timed_steps"] == TINY_BUDGET.timing_repeats).all()
+    assert list(links["links"]) == [4, 5] and (links["timed_steps"] == TINY_BUDGET.timing.repeats).all()
     points = pd.read_csv(tmp_path / "mppi_time_vs_points.csv")
     assert sorted(points["observed_points"]) == [250, 500] and (points["mppi_step_s_mean"] > 0).all()
     fig4 = pd.read_csv(tmp_path / "fig4_sphere_distances.csv")
