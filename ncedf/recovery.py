@@ -16,7 +16,10 @@ route: each step moves to the farthest route state within one step's bound
 (or towards the next, at the bound) if that move passes the safety check,
 which sees the moving obstacles too; else it holds if holding passes, else it
 takes MPPI's own action. MPPI keeps planning underneath and takes over at the
-route's end, with a fresh stall count.
+route's end, with a fresh stall count. A route whose next move the check refuses
+for ``after`` steps in a row is given up (its remaining states may pass the
+obstacle model's clearance but not the check's distance to the points): MPPI
+steers again and the stall count, still growing, calls the next plan.
 """
 
 from __future__ import annotations
@@ -61,11 +64,12 @@ class RouteRecovery:
 
 class RouteState(NamedTuple):
     """The route being followed: its states (K, M, 3) m (K = 0: none), the index of the last one
-    reached, and the routes planned so far."""
+    reached, the routes planned so far, and the steps in a row its next move was refused."""
 
     states: np.ndarray
     at: int
     routes: int
+    blocked: int = 0
 
 
 def no_route(spec: RobotSpec) -> RouteState:
@@ -142,5 +146,7 @@ def supervise(recovery: RouteRecovery, spec: RobotSpec, check_moves, margin: flo
     if clear[0] >= margin:
         if reached == len(route.states) - 1:  # the route's end: MPPI again, with a fresh stall count
             mppi = _fresh_progress(mppi)
-        return moves[0], route._replace(at=reached), mppi
-    return (moves[1] if clear[1] >= margin else action), route, mppi
+        return moves[0], route._replace(at=reached, blocked=0), mppi
+    if route.blocked + 1 >= recovery.after:  # given up: MPPI steers, the stall count goes on
+        return action, no_route(spec)._replace(routes=route.routes), mppi
+    return (moves[1] if clear[1] >= margin else action), route._replace(blocked=route.blocked + 1), mppi

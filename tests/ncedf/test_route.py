@@ -205,6 +205,26 @@ def test_a_route_is_executed_a_step_at_a_time_and_held_where_the_check_refuses(c
     assert after.route.at == 0 and len(after.route.states) == 4
 
 
+def test_a_route_refused_for_after_steps_in_a_row_is_given_up():
+    """The ball of the test above in the way of the route's next move: the robot holds while the check
+    refuses it, and after ``after`` refusals in a row the route is dropped and MPPI steers again."""
+    mppi = _controller()
+    c = mppi.config.mppi
+    bend = np.array([[0.3, -0.15, -0.15], [0.0, 0.0, 0.0]], np.float32) * 0.9 * c.control_bound * c.dt / 0.3
+    route = (START + np.arange(4)[:, None, None] * bend / 2).astype(np.float32)
+    now, ahead = tips(START[None], SPEC)[0], tips(route[2:3], SPEC)[0]
+    d = np.random.default_rng(0).normal(size=(40, 3))
+    ball = (ahead + 0.25 * (ahead - now) / np.linalg.norm(ahead - now) + 0.05 * d / np.linalg.norm(d, axis=1,
+                                                                                                   keepdims=True))
+    state = mppi.init(jax.random.PRNGKey(0))._replace(route=RouteState(route, 0, 1))
+    for k in range(1, mppi.config.recovery.after):
+        action, state, _ = mppi.step(state, START, GOAL, ball.astype(np.float32))
+        np.testing.assert_array_equal(np.asarray(action), 0.0)
+        assert state.route.blocked == k and len(state.route.states) == 4
+    _, state, _ = mppi.step(state, START, GOAL, ball.astype(np.float32))
+    assert len(state.route.states) == 0 and state.route.routes == 1 and state.route.blocked == 0
+
+
 def test_a_stalled_controller_plans_a_route_from_where_it_is(cloud):
     mppi = _controller()
     state = _stalled(mppi.init(jax.random.PRNGKey(0)), 50)
