@@ -456,12 +456,12 @@ def rollout_min_distances_broad(shape, arcs, points, mask, k1: int, k2: int, seg
         k1 = max(1, min(k1, n_points))
         k2 = max(1, min(k2, n_links * k1))
         idx = stage_one(xyz, points, mask, k1, segments)  # (H, M, K1)
-        link, pidx = stage_two(xyz, radius, idx, points, mask, k2, segments, max(spec.radii) + spec.length)  # (N, H, K2)
+        link, pidx = stage_two(xyz, radius, idx, points, mask, k2, segments, spec.thickest + spec.length)  # (N, H, K2)
         ok = mask[pidx]
     else:
         index, valid, centre, g_radius = cloud_groups(points, mask, group_size)
         members = tuple(points[index, i] for i in range(3))  # (G, B)
-        offset = jnp.max(jnp.where(jnp.isfinite(g_radius), g_radius, 0.0)) + max(spec.radii) + spec.length
+        offset = jnp.max(jnp.where(jnp.isfinite(g_radius), g_radius, 0.0)) + spec.thickest + spec.length
         n_pairs = max(1, min(groups, n_links * index.shape[0]))
         link, group, found = group_pairs(xyz, radius, centre, g_radius, n_pairs, segments, offset)  # (N, H, C)
         link, pidx, ok = group_points(xyz, radius, link, group, found, index, valid, members,

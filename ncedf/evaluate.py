@@ -45,9 +45,14 @@ def inference_times_ms(model, points, arc, repeats: int) -> list[float]:
     return times
 
 
-def inference_ms(model, links: int = 4, points: int = 500, repeats: int = 200, seed: int = 0) -> float:
-    """Median wall time (ms) of ``robot_distance`` for one configuration."""
-    spec = RobotSpec(model.spec.n_links if model.spec.tapered else links, **model.spec.link_geometry())
+def timed_links(model) -> int:
+    """The links of the timed configuration: 4 (the paper's), or a tapered model's own."""
+    return model.spec.n_links if model.spec.tapered else 4
+
+
+def inference_ms(model, links: int, points: int = 500, repeats: int = 200, seed: int = 0) -> float:
+    """Median wall time (ms) of ``robot_distance`` for one ``links``-link configuration."""
+    spec = RobotSpec(links, **model.spec.link_geometry())
     k_arc, k_pts = jax.random.split(jax.random.PRNGKey(seed))
     arc = sample_arc_lengths(k_arc, spec, (spec.n_links,))
     pts = unit(spec) * jax.random.uniform(k_pts, (points, 3), minval=-4.0, maxval=8.0)
@@ -96,8 +101,8 @@ def main(argv=None) -> int:
                   f"encoding {cfg.encoding}, output {cfg.output}")
             for link in model.links():
                 report_link(link, val_cfg, args)
-            links = model.spec.n_links if model.spec.tapered else 4
-            print(f"inference: {inference_ms(model):.3f} ms for one {links}-link configuration against 500 points "
+            links = timed_links(model)
+            print(f"inference: {inference_ms(model, links):.3f} ms for one {links}-link configuration against 500 points "
                   f"(median, {jax.devices()[0].platform})")
     except Stopped as stop:
         print(f"stopped by {stop}: nothing written", file=sys.stderr)

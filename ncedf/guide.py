@@ -111,7 +111,18 @@ def approach(field: Grid, start, goal, back: float) -> np.ndarray | None:
     values, h = np.asarray(field.values, np.float64), float(field.spacing)
     cells = np.rint((path - np.asarray(field.origin)) / h).astype(int)
     far = values[tuple(cells.T)] >= back
-    cell = tuple(cells[np.flatnonzero(far)[-1]] if far.any() else cells[0])
-    slope = -np.array([np.gradient(values, h, axis=k)[cell] for k in range(3)])
+    cell = cells[np.flatnonzero(far)[-1]] if far.any() else cells[0]
+    slope = -_gradient_at(values, cell, h)
     length = float(np.linalg.norm(slope))
     return slope / length if length > 0 else None
+
+
+def _gradient_at(values: np.ndarray, cell: np.ndarray, h: float) -> np.ndarray:
+    """(3,) ``np.gradient(values, h)`` at one cell (3 ints) without the whole grid's: central
+    differences inside, one-sided ones on the border."""
+    out = np.zeros(3)
+    for k in range(3):
+        lo, hi = cell.copy(), cell.copy()
+        lo[k], hi[k] = max(cell[k] - 1, 0), min(cell[k] + 1, values.shape[k] - 1)
+        out[k] = (values[tuple(hi)] - values[tuple(lo)]) / (h * (hi[k] - lo[k]))
+    return out

@@ -177,7 +177,7 @@ def ours(spec: RobotSpec, observation: Observation) -> ControllerConfig:
     if not observation.convex:
         return dataclasses.replace(
             base, mppi=dataclasses.replace(base.mppi, w_coll=SURFACE_W_COLL, w_coll_terminal=SURFACE_W_COLL),
-            model=GridModel(max(observation.gap, max(spec.radii)), max(spec.radii)), guide=Guide(max(spec.radii)),
+            model=GridModel(max(observation.gap, spec.thickest), spec.thickest), guide=Guide(spec.thickest),
             temperature=EffectiveSampleSize(OURS_ESS, StallEscape(STALL_STEPS, STALL_ESS)),
             recovery=RouteRecovery(after=STALL_STEPS, route=GRID_ROUTE))
     return dataclasses.replace(

@@ -96,6 +96,11 @@ class RobotSpec:
         """The radius of each link, (M,) floats, m."""
         return self.radius if self.tapered else (self.radius,) * self.n_links
 
+    @property
+    def thickest(self) -> float:
+        """The largest link radius, m (what a bound over every link needs)."""
+        return max(self.radii)
+
     def radius_of(self, link=None):
         """Radii that broadcast against per-link arrays, m: the float of a uniform robot; for a
         tapered one ``radii[link]`` (numpy for a numpy index, else jax), or all M for ``link=None``."""

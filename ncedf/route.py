@@ -348,8 +348,8 @@ def plan_route(spec: RobotSpec, polytopes: Polytopes, start, goal, key, config: 
     free = drawn[clearances(drawn, spec, polytopes) >= config.node_clearance]
     if len(free) == 0:
         return None
-    chains = free[:0]
-    targets = chains if aligned_only else goal_states(free, goal, spec, polytopes, config)
+    chains = free[:0]  # none without an approach
+    targets = free[:0] if aligned_only else goal_states(free, goal, spec, polytopes, config)
     if approach is not None:
         aligned = goal_states(free, goal, spec, polytopes, config, np.asarray(approach, np.float64))
         chains = retraction_chains(aligned, goal, np.asarray(approach, np.float64), spec, polytopes, config)

@@ -36,7 +36,8 @@ from tqdm import tqdm
 from ncedf.compile_cache import enable_compile_cache
 from ncedf.data import BOX_MAX, BOX_MIN, DatasetConfig, LinkDataset, ValidationConfig, load_dataset
 from ncedf.metrics import NEAR_FIELD, distance_metrics
-from ncedf.model import ENCODINGS, MLP, NCEDF, OUTPUTS, ModelConfig, encode, init_params, save_model, stack_links
+from ncedf.model import (ENCODINGS, MLP, NCEDF, OUTPUTS, ModelConfig, encode, init_params, model_spec, save_model,
+                         stack_links)
 from ncedf.robot import RobotSpec
 from ncedf.units import to_reference, unit
 
@@ -324,7 +325,7 @@ def train_links(spec: RobotSpec, model_cfg, cfg, data_cfg, val_cfg, on_epoch=Non
     Returns the parameters (stacked per link for a tapered robot), the training sets, the
     validation sets, the per-link histories and the seconds spent making the data.
     """
-    links = [spec.link(i) for i in range(spec.n_links)] if spec.tapered else [RobotSpec(1, **spec.link_geometry())]
+    links = [spec.link(i) for i in range(spec.n_links)] if spec.tapered else [model_spec(spec)]
     params, data, val, history, data_seconds = [], [], [], [], 0.0
     for link in links:
         start = time.perf_counter()

@@ -37,7 +37,7 @@ def robot_motion_bound(spec: RobotSpec, arc0, arc1) -> float:
     linearly from ``arc0`` to ``arc1`` (M, 3): ``sum_j |Delta ab_j| ((M - j) L + r)``."""
     delta = check_state(arc1, spec) - check_state(arc0, spec)
     dab = np.asarray(_bending_vector(delta, spec), np.float64)  # linear in the arc lengths: the change of ab
-    lever = (spec.n_links - np.arange(spec.n_links)) * spec.length + max(spec.radii)
+    lever = (spec.n_links - np.arange(spec.n_links)) * spec.length + spec.thickest
     return float(np.sum(np.linalg.norm(dab, axis=-1) * lever))
 
 

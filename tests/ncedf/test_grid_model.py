@@ -9,7 +9,7 @@ from scipy.spatial import cKDTree
 
 from ncedf.controller import Controller, ControllerConfig
 from ncedf.grid_model import EXACT_BAND, REACH, GridModel, grid_clearance, grid_distance
-from ncedf.guide import Guide, guided_distance
+from ncedf.guide import Guide, _gradient_at, guided_distance
 from ncedf.presets import Observation, ours, sampling_gap
 from ncedf.robot import RobotSpec, forward_kinematics
 from ncedf.shapes import make_shape
@@ -161,3 +161,10 @@ def test_an_opening_of_the_robots_diameter_and_a_margin_stays_open_in_a_closed_w
     assert grid.values[centre] >= 0.2
     field = Guide(0.2).fit(grid, goal)
     assert 2.0 <= float(guided_distance(field, jnp.asarray(start, jnp.float32))) < 2.0 * 1.15
+
+
+def test_the_guides_gradient_at_a_cell_is_numpys_over_the_whole_grid():
+    values = np.random.default_rng(0).normal(size=(7, 5, 9))
+    full = [np.gradient(values, 0.2, axis=k) for k in range(3)]
+    for cell in np.ndindex(values.shape):  # the border cells' one-sided differences too
+        np.testing.assert_array_equal(_gradient_at(values, np.array(cell), 0.2), [g[cell] for g in full])

@@ -102,8 +102,8 @@ def test_a_tapered_model_round_trips_and_each_link_uses_its_own_network(tmp_path
 def _dense_surface(arc, spec: RobotSpec, spacing: float) -> np.ndarray:
     """Every link's lateral surface and the end disks at most ``spacing`` apart, world, (N, 3)."""
     u = np.linspace(0.0, 1.0, int(np.ceil(1.3 * spec.length / spacing)) + 1)
-    psi = np.linspace(0.0, 2 * np.pi, int(np.ceil(2 * np.pi * max(spec.radii) / spacing)), endpoint=False)
-    w = np.linspace(0.0, 1.0, int(max(spec.radii) / spacing) + 1)
+    psi = np.linspace(0.0, 2 * np.pi, int(np.ceil(2 * np.pi * spec.thickest / spacing)), endpoint=False)
+    w = np.linspace(0.0, 1.0, int(spec.thickest / spacing) + 1)
     lateral = np.stack(np.broadcast_arrays(u[:, None], psi[None], 1.0), -1).reshape(-1, 3)
     disks = np.concatenate([np.stack(np.broadcast_arrays(end, psi[None], w[:, None]), -1).reshape(-1, 3)
                             for end in (0.0, 1.0)])
