@@ -407,19 +407,28 @@ def robot_clearance(arcs: jnp.ndarray, frames: jnp.ndarray, spec: RobotSpec, pol
     """
     cover = SphereShape(spec, per_link=COVER_SPHERES)
 
-    def one(as_dense, state):  # one configuration: (M, 3), (M + 1, 4, 4), () -> ()
-        arc, frame, time = state
-        geom = cover.prepare(arc, frame)
-        return jnp.min(polytope_distance(geom.centres, polytopes, time, as_dense) - geom.radius[:, None])
+    def scored(as_dense, states):  # configurations (S, M, 3), (S, M + 1, 4, 4), (S,) -> (S,)
+        arc, frame, time = states
+        geom = cover.prepare(arc, frame)  # centres (S, M, n, 3), radius (S, M)
+        d = polytope_distance(geom.centres, polytopes, time[:, None, None], as_dense) - geom.radius[..., None]
+        return jnp.min(d, axis=(-2, -1))
 
-    def chunked(states):
-        return jax.lax.map(functools.partial(one, False), states, batch_size=CLEARANCE_CHUNK)
+    def chunked(states):  # whole chunks in a loop, then the rest
+        n = states[0].shape[0]
+        whole = n - n % CLEARANCE_CHUNK
+        parts = []
+        if whole:
+            chunks = jax.tree.map(lambda x: x[:whole].reshape((-1, CLEARANCE_CHUNK) + x.shape[1:]), states)
+            parts.append(jax.lax.map(functools.partial(scored, False), chunks).reshape(-1))
+        if n > whole:
+            parts.append(scored(False, jax.tree.map(lambda x: x[whole:], states)))
+        return jnp.concatenate(parts)
 
     t = jnp.asarray(t, arcs.dtype)
     batch = jnp.broadcast_shapes(arcs.shape[:-2], t.shape)
     states = tuple(jnp.broadcast_to(x, batch + x.shape[x.ndim - core:]).reshape((-1,) + x.shape[x.ndim - core:])
                    for x, core in ((arcs, 2), (frames, 3), (t, 0)))
-    at_once = jax.vmap(functools.partial(one, True))
+    at_once = functools.partial(scored, True)
     if dense is None:
         return jax.lax.platform_dependent(states, cpu=chunked, default=at_once).reshape(batch)
     return (at_once if dense else chunked)(states).reshape(batch)

@@ -271,7 +271,8 @@ class SphereShape(_Base):
         """Per-configuration geometry; ``frames`` = forward kinematics if already known."""
         base = self._base_geometry(arc, frames)
         fractions = (jnp.arange(self.per_link) + 0.5) / self.per_link
-        centres = backbone_points(bending_vector(arc, self.spec), base.frames[:-1], fractions, self.spec.length)
+        centres = backbone_points(bending_vector(arc, self.spec), base.frames[..., :-1, :, :], fractions,
+                                  self.spec.length)
         radius = sphere_cover_radius(base.theta, self.spec, self.per_link)
         return base._replace(centres=centres, radius=radius)
 
