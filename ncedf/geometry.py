@@ -14,10 +14,11 @@ CEDF label Gamma_i (paper Sec. IV-A).
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import jax
 import jax.numpy as jnp
 import numpy as np
-import trimesh
 
 from ncedf.robot import (
     RobotSpec,
@@ -30,6 +31,9 @@ from ncedf.robot import (
     safe_norm,
     safe_sqrt,
 )
+
+if TYPE_CHECKING:
+    import trimesh
 
 # Below this theta^2 the distance to the backbone circle uses its series form in the
 # bending vector (the bending-plane coordinates divide by theta).
@@ -297,5 +301,6 @@ def robot_mesh_arrays(arc: jnp.ndarray, spec: RobotSpec, rings: int = 24, around
 
 def robot_mesh(arc, spec: RobotSpec, rings: int = 24, around: int = 24) -> trimesh.Trimesh:
     """The robot's surface as a trimesh: one closed tube per link (not merged)."""
+    import trimesh  # here: the package's only use of trimesh, and slow to import
     vertices, faces = robot_mesh_arrays(arc, spec, rings, around)
     return trimesh.Trimesh(vertices=vertices, faces=faces, process=False)

@@ -73,9 +73,19 @@ CLI: `python -m recorder.inspect FILE...`; `python -m recorder.synthetic OUT` wr
 """
 
 from recorder.errors import RecorderError, RecordingInterrupted
-from recorder.read import IncompleteRecordingWarning, Run, load_run, load_runs, load_summaries
 from recorder.recorder import Recorder
 from recorder.viewer import ViewerWarning
+
+#: What ``recorder.read`` gives, imported on first use (it brings pandas: slow to import for a runner).
+_READ = ("IncompleteRecordingWarning", "Run", "load_run", "load_runs", "load_summaries")
+
+
+def __getattr__(name: str):
+    if name in _READ:
+        from recorder import read
+
+        return getattr(read, name)
+    raise AttributeError(f"module 'recorder' has no attribute {name!r}")
 
 __all__ = ["Recorder", "RecorderError", "RecordingInterrupted", "IncompleteRecordingWarning", "Run", "ViewerWarning",
            "load_run", "load_runs", "load_summaries"]

@@ -2,7 +2,7 @@
 
 Errors (:class:`MeshError`, one line naming the mesh): no faces, NaN or infinite vertices, faces
 indexing missing vertices, more than ``MAX_FACES`` faces, or a degenerate face (zero area, or a
-sliver the BVH skips, :data:`scenarios.mesh_index.SLIVER_RATIO`) whose long edge is not an edge
+sliver the BVH skips, :data:`SLIVER_RATIO`) whose long edge is not an edge
 of a proper face: its points would be missed. Degenerate faces whose long edge is shared with a
 proper face add no point to the surface; they are dropped with a warning.
 
@@ -21,7 +21,11 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from scenarios.mesh_index import SLIVER_RATIO
+#: Faces whose doubled area is below this fraction of their summed squared edge lengths are skipped by
+#: Warp's closest-point search in ``scenarios.mesh_index`` (its sliver test, 1e-6, with a margin for
+#: float32): the mesh checks treat them as degenerate.
+SLIVER_RATIO = 4e-6
+
 
 MAX_FACES = 4_000_000
 

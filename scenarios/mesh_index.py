@@ -15,10 +15,6 @@ import numpy as np
 import warp as wp
 
 wp.config.log_level = wp.LOG_ERROR  # no greeting, no compile times, no "no CUDA driver" on a CPU machine
-# Faces whose doubled area is below this fraction of their summed squared edge lengths are skipped by
-# Warp's closest-point search (its sliver test, 1e-6, with a margin for float32): the mesh checks treat
-# them as degenerate.
-SLIVER_RATIO = 4e-6
 _FAR = 1.0e6  # m: a query radius that holds every mesh the judge accepts
 
 

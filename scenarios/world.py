@@ -21,13 +21,16 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+from typing import TYPE_CHECKING
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from scenarios.mesh_check import MeshError, check_mesh, triangle_areas
-from scenarios.mesh_index import MeshIndex
+
+if TYPE_CHECKING:
+    from scenarios.mesh_index import MeshIndex
 
 OBSERVE_MODES = ("surface", "centres")
 
@@ -199,7 +202,9 @@ class MeshObstacle:
 
     @functools.cached_property
     def index(self) -> MeshIndex:
-        """Its bounding-volume hierarchy (built on first use)."""
+        """Its bounding-volume hierarchy (built on first use; warp is imported then: slow to import)."""
+        from scenarios.mesh_index import MeshIndex
+
         return MeshIndex(self.vertices, self.faces)
 
 
