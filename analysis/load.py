@@ -22,12 +22,10 @@ import pandas as pd
 
 from analysis.stats import pooled_mean_std
 from ncedf.robot import RobotSpec
-from recorder import RecorderError, load_summaries
+from recorder import RecorderError, load_summaries, schema
 
 #: Outcomes of finished runs (anything else, e.g. interrupted or none, is left out).
 FINAL = ("success", "collision", "stuck")
-#: Scenario name of an experiment's manifest recording (scenarios.reproduce).
-MANIFEST = "experiment"
 #: The paper's link, against which :func:`robot_label` names another robot.
 PAPER_ROBOT = RobotSpec(1)
 
@@ -61,7 +59,7 @@ def _read(folder: Path) -> tuple[pd.DataFrame, list[tuple[str, str]]]:
     """load_summaries(folder) and the files it skipped (path, why)."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        runs = load_summaries(folder)
+        runs = load_summaries(folder, kind="all")
     problems = [(str(w.message).removeprefix("skipped: ").split(" ", 1)[0], str(w.message).removeprefix("skipped: "))
                 for w in caught if str(w.message).startswith("skipped: ")]
     return runs, problems
@@ -83,7 +81,7 @@ def load(folder: str | Path) -> Recordings:
         why = "not closed (run killed?)" if not row["complete"] else f"outcome {row['outcome']!r}, not final"
         problems.append((row["path"], why))
     runs = runs[~bad]
-    is_manifest = runs["scenario"] == MANIFEST if "scenario" in runs else pd.Series(False, index=runs.index)
+    is_manifest = runs["scenario"] == schema.MANIFEST if "scenario" in runs else pd.Series(False, index=runs.index)
     manifests = runs[is_manifest].reset_index(drop=True)
     runs = runs[~is_manifest].reset_index(drop=True)
     quick_folders = set(manifests.loc[manifests["quick"].astype(bool), "folder"]) if "quick" in manifests else set()

@@ -232,20 +232,40 @@ def _read_quietly(path: Path) -> tuple[str, _Raw] | None:
         return None
 
 
-def load_runs(folder: str | Path) -> tuple[pd.DataFrame, pd.DataFrame]:
+#: What :func:`load_runs` and :func:`load_summaries` list: the episodes, the manifests or both.
+KINDS = ("episodes", "manifests", "all")
+
+
+def _check_kind(kind: str) -> None:
+    if kind not in KINDS:
+        raise ValueError(f"kind must be one of {', '.join(KINDS)}, got {kind!r}")
+
+
+def _wanted(meta: dict[str, Any], kind: str) -> bool:
+    """Whether a recording with run metadata ``meta`` is of ``kind`` (:data:`KINDS`)."""
+    return kind == "all" or (meta.get("scenario") == schema.MANIFEST) == (kind == "manifests")
+
+
+def load_runs(folder: str | Path, kind: str = "episodes") -> tuple[pd.DataFrame, pd.DataFrame]:
     """All runs under `folder` -> (runs, steps).
+
+    kind: "episodes" (the default: an experiment's manifest, ``schema.MANIFEST``, is not an episode),
+    "manifests" or "all".
 
     runs: one row per run: run_id, path, format, complete, the outcome fields, then the run
     metadata (nested dicts flattened to dotted names, e.g. `mppi.horizon`).
     steps: the long per-step metrics table, `run_id` first, then the metrics columns.
     Unreadable files are skipped with a warning naming them.
     """
+    _check_kind(kind)
     run_rows, step_rows = [], []
     for path in find_recordings(folder):
         read = _read_quietly(path)
         if read is None:
             continue
         fmt, raw = read
+        if not _wanted(raw.meta, kind):
+            continue
         row = _run_row(path, fmt, raw.meta, raw.outcome, raw.complete)
         run_rows.append(row)
         for metrics in raw.metrics:
@@ -270,8 +290,8 @@ def _summary_record(path: Path) -> dict[str, Any] | None:
             **summary.columns(stats)}
 
 
-def load_summaries(folder: str | Path) -> pd.DataFrame:
-    """All runs under `folder` -> one row per run: the columns of `load_runs`' runs table, then
+def load_summaries(folder: str | Path, kind: str = "episodes") -> pd.DataFrame:
+    """All runs under `folder` (of `kind`, as `load_runs`) -> one row per run: the columns of `load_runs`' runs table, then
     `summary.ROWS` (the number of /metrics rows) and, per metric column, `<metric>.<stat>` for each of
     `summary.STATS` (count of finite values, mean, population std, min, max, last finite value and its step).
 
@@ -279,6 +299,7 @@ def load_summaries(folder: str | Path) -> pd.DataFrame:
     .rrd files, unclosed files and older recordings are read in full and the same statistics computed
     from their rows (equal values either way). Unreadable files are skipped with a warning naming them.
     """
+    _check_kind(kind)
     rows = []
     for path in find_recordings(folder):
         row = _summary_record(path) if path.suffix == ".mcap" else None
@@ -289,5 +310,6 @@ def load_summaries(folder: str | Path) -> pd.DataFrame:
             fmt, raw = read
             row = {**_run_row(path, fmt, raw.meta, raw.outcome, raw.complete),
                    **summary.columns(summary.summarize(raw.metrics))}
-        rows.append(row)
+        if _wanted(row, kind):
+            rows.append(row)
     return _runs_frame(rows)

@@ -39,10 +39,14 @@ SIM_TIME_TIMELINE = "sim_time"
 
 #: The metrics every closed-loop step reports, in column order. Extra float keys follow, sorted.
 STANDARD_METRICS = ("goal_distance", "predicted_min_distance", "true_min_distance", "solver_ms")
-#: Metrics drawn in the "distances" plot of the Rerun blueprint.
-DISTANCE_METRICS = ("goal_distance", "predicted_min_distance", "true_min_distance")
+#: Metrics drawn in the "clearance" plot of the Rerun blueprint (tenths of a metre: the goal distance,
+#: metres, has a plot of its own).
+CLEARANCE_METRICS = ("predicted_min_distance", "true_min_distance", "current_min_distance")
 
 OUTCOMES = ("success", "collision", "stuck", "interrupted")
+#: The ``scenario`` of an experiment folder's manifest (``scenarios.manifest``): a recording of what
+#: produced the runs beside it, not an episode; ``recorder.read`` lists manifests apart.
+MANIFEST = "experiment"
 #: Outcome fields in order; all but `outcome` may be None.
 OUTCOME_FIELDS = ("outcome", "steps", "reach_step", "min_true_distance", "first_collision_step")
 

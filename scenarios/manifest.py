@@ -39,10 +39,10 @@ def machine() -> dict:
 def write_manifest(where: Path, experiment: str, command: str, settings: dict, *, quick: bool = False,
                    budget: dict | None = None) -> None:
     """Write (or rewrite) ``where/experiment.mcap`` for ``experiment`` run by ``command``."""
-    from recorder import Recorder
+    from recorder import Recorder, schema
 
     where = Path(where)
-    meta = {"run_id": f"{where.name}/{STEM}", "scenario": STEM, "experiment": experiment, "quick": quick,
+    meta = {"run_id": f"{where.name}/{STEM}", "scenario": schema.MANIFEST, "experiment": experiment, "quick": quick,
             "budget": budget or {}, "settings": settings, "command": command,
             "date": datetime.datetime.now(datetime.UTC).isoformat(), "machine": machine()}
     where.mkdir(parents=True, exist_ok=True)

@@ -12,7 +12,7 @@ import pytest
 import rerun.chunk as rc
 from recorder_readback import mcap_messages, rrd_columns, xyz
 
-from recorder import Recorder, load_run, load_runs, schema
+from recorder import Recorder, load_run, load_runs, load_summaries, schema
 from recorder.synthetic import SyntheticRun
 
 RERUN = str(Path(sys.executable).with_name("rerun"))
@@ -224,6 +224,19 @@ def test_load_runs_tables(recorded, tmp_path):
     r0 = steps[steps.run_id == "r0"].drop(columns="run_id").dropna(axis=1, how="all").reset_index(drop=True)
     pd.testing.assert_frame_equal(r0, expected_metrics(sent))
     assert steps.loc[steps.run_id == "s2", "goal_distance"].tolist() == [2.0]
+
+
+def test_an_experiment_manifest_is_listed_apart_from_the_episodes(tmp_path):
+    for name, scenario in (("episode", "cluttered"), ("experiment", schema.MANIFEST)):
+        with Recorder(tmp_path / name, {"scenario": scenario}, formats=("mcap",)) as rec:
+            rec.log_step(0, 0.0, metrics={"goal_distance": 1.0})
+            rec.finish({"outcome": "success", "steps": 1})
+    for read in (lambda **kw: load_runs(tmp_path, **kw)[0], lambda **kw: load_summaries(tmp_path, **kw)):
+        assert read()["run_id"].tolist() == ["episode"]
+        assert read(kind="manifests")["run_id"].tolist() == ["experiment"]
+        assert read(kind="all")["run_id"].tolist() == ["episode", "experiment"]
+        with pytest.raises(ValueError, match="'episode'"):
+            read(kind="episode")
 
 
 def test_ragged_backbones_and_empty_obstacles(tmp_path):

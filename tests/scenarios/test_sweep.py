@@ -86,8 +86,8 @@ def test_a_sweep_records_every_episode_and_counts_their_outcomes(swept):
     assert status == 0, stderr
     expected = {episode_name(tiny(e)) for e in range(ENVS)}
     assert {p.stem for p in out.glob("*.mcap")} == expected | {manifest.STEM} and not list(out.glob("*.rrd"))
-    runs, _ = load_runs(out)
-    runs = runs[runs["scenario"] != manifest.STEM]
+    runs, _ = load_runs(out)  # the episodes: the manifest is listed apart
+    assert list(load_runs(out, kind="manifests")[0]["path"]) == [str(out / f"{manifest.STEM}.mcap")]
     assert runs["complete"].all() and set(runs["outcome"]) <= set(FINAL_OUTCOMES)
     for path in runs["path"]:  # each recording holds the settings it is named after
         assert episode_name(EpisodeSettings.from_dict(load_run(path).meta["settings"])) == Path(path).stem
