@@ -42,11 +42,13 @@ _LEVELS = {"debug": "DEBUG", "info": "INFO", "warning": "WARN", "warn": "WARN", 
 
 
 def _blueprint() -> rrb.Blueprint:
-    distances = [f"{schema.METRICS}/{name}" for name in schema.DISTANCE_METRICS] + [schema.SAFETY_MARGIN,
-                                                                                    schema.GOAL_TOLERANCE]
-    others = [f"+ {schema.METRICS}/**"] + [f"- {schema.METRICS}/{name}" for name in schema.STANDARD_METRICS]
+    clearances = [f"{schema.METRICS}/{name}" for name in schema.CLEARANCE_METRICS] + [schema.SAFETY_MARGIN]
+    shown = ("goal_distance", "solver_ms", *schema.CLEARANCE_METRICS)
+    others = [f"+ {schema.METRICS}/**"] + [f"- {schema.METRICS}/{name}" for name in shown]
     plots = [
-        rrb.TimeSeriesView(name="distances [m]", origin="/", contents=distances),
+        rrb.TimeSeriesView(name="goal distance [m]", origin="/",
+                           contents=[f"{schema.METRICS}/goal_distance", schema.GOAL_TOLERANCE]),
+        rrb.TimeSeriesView(name="clearance [m]", origin="/", contents=clearances),
         rrb.TimeSeriesView(name="solver [ms]", origin="/", contents=[f"{schema.METRICS}/solver_ms"]),
         rrb.TimeSeriesView(name="other metrics", origin="/", contents=others),
     ]

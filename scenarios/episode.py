@@ -76,6 +76,7 @@ from tqdm import tqdm
 from ncedf.geometry import robot_link_signed_distances, robot_mesh_arrays, robot_surface_points
 from ncedf.model import load_model
 from ncedf.controller import Controller, ControllerConfig, config_to_dict
+from ncedf.events import step_events
 from ncedf.mppi import MPPIConfig
 from ncedf.presets import DEFAULT, PRESETS, observe, preset
 from ncedf.robot import RobotSpec, arc_lengths_to_config, forward_kinematics, project_state
@@ -600,7 +601,23 @@ class _Loop:
     def close(self) -> None:
         self.bar.close()
 
+    def log(self, level: str, text: str) -> None:
+        """A line in the recording's log, at the last recorded step."""
+        if self.recorder is not None and not self.recorder.closed:
+            self.recorder.log_text(text, level)
+
+    def outcome_line(self, outcome: str, signal_name: str | None) -> tuple[str, str]:
+        """The log line of the episode's end."""
+        if outcome == "success":
+            return "info", f"goal reached at step {self.reach_step}, {self.goal_distance:.3f} m from it"
+        if outcome == "collision":
+            return "error", f"collision during step {self.first_collision_step}: exact distance {self.min_true:.3f} m"
+        if outcome == "stuck":
+            return "warning", f"goal not reached in {self.steps} steps: {self.goal_distance:.3f} m from it"
+        return "warning", f"interrupted ({signal_name or 'an error'}) after {self.steps} steps"
+
     def result(self, outcome: str, signal_name: str | None = None) -> EpisodeResult:
+        self.log(*self.outcome_line(outcome, signal_name))
         ms = np.asarray(self.solver_ms)
         return EpisodeResult(
             outcome=outcome, steps=self.steps, reach_step=self.reach_step, min_true_distance=self.min_true,
@@ -632,7 +649,7 @@ class _Loop:
                     return self.result("success")
                 return self.result("stuck")
 
-            start = time.perf_counter()
+            start, before = time.perf_counter(), state
             action, state, info = jax.block_until_ready(mppi.step(state, arc, goal_jnp, points))
             self.solver_ms.append((time.perf_counter() - start) * 1e3)
             arc_next = np.asarray(project_state(arc + np.asarray(action) * dt, spec), dtype=np.float32)
@@ -648,6 +665,8 @@ class _Loop:
                 "solver_ms": self.solver_ms[-1],
                 "current_min_distance": float(info.current_min_distance) - world.margin_extra,
             }, last=collided)
+            for level, text in step_events(mppi.config, before, state, info):
+                self.log(level, f"step {k}: {text}")
             self.bar.update(1)
             if collided:
                 return self.result("collision")

@@ -15,8 +15,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from mcap.reader import make_reader
+from mcap_protobuf.decoder import DecoderFactory
+
 from ncedf.controller import config_from_dict
-from recorder import load_run
+from recorder import load_run, schema
 from scenarios import episode as episode_mod
 from scenarios.episode import Episode, EpisodeSettings, episode_name, goal_errors, goal_position, run_episode
 
@@ -62,6 +65,15 @@ def read(result):
     return run
 
 
+def log_lines(result) -> list[str]:
+    """The text of the recording's log messages (foxglove.Log on /log), in order."""
+    (path,) = [p for p in result.paths if p.endswith(".mcap")]
+    decoder = DecoderFactory()
+    with open(path, "rb") as f:
+        return [decoder.decoder_for(channel.message_encoding, schema_)(message.data).message
+                for schema_, channel, message in make_reader(f).iter_messages(topics=[schema.LOG])]
+
+
 def test_overlap_at_start_is_a_collision_at_step_0(clouds, recordings):
     result = run_episode(settings_for(clouds["overlap"], (3.0, 0.0, 6.0), 5), out=recordings / "overlap",
                          formats=("mcap",))
@@ -72,6 +84,7 @@ def test_overlap_at_start_is_a_collision_at_step_0(clouds, recordings):
     # a point on the backbone of a straight link lies one radius deep
     assert run.metrics["true_min_distance"].iloc[0] == pytest.approx(-0.2, abs=1e-5)
     assert run.outcome["min_true_distance"] == pytest.approx(-0.2, abs=1e-5)
+    assert log_lines(result) == ["collision during step 0: exact distance -0.200 m"]
 
 
 def test_goal_near_the_start_is_reached(clouds, recordings):
@@ -87,6 +100,7 @@ def test_goal_near_the_start_is_reached(clouds, recordings):
     assert result.reach_step == run.outcome["reach_step"] == first == result.steps > 0
     assert len(run.metrics) == first + 1  # the last row is the reaching state
     assert math.isnan(run.metrics["solver_ms"].iloc[-1]) and np.all(run.metrics["solver_ms"].iloc[:-1] > 0)
+    assert log_lines(result)[-1] == f"goal reached at step {first}, {distances[first]:.3f} m from it"
 
 
 def test_goal_at_the_start_is_reached_at_step_0(clouds):
@@ -103,6 +117,7 @@ def test_unreachable_goal_is_stuck(clouds, recordings):
     assert run.outcome["outcome"] == "stuck" and run.outcome["steps"] == 3
     assert list(run.metrics["step"]) == [0, 1, 2, 3]
     assert np.all(run.metrics["goal_distance"] >= 20.0 - 2.0 * LINKS)
+    assert log_lines(result)[-1] == f"goal not reached in 3 steps: {run.metrics['goal_distance'].iloc[-1]:.3f} m from it"
 
 
 @pytest.fixture(scope="module")
