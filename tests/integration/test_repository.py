@@ -1,0 +1,82 @@
+"""The repository as a user meets it: a README of at most 120 lines, no reference to a file outside
+the repository, and every command's ``--help`` giving each option in at most two lines."""
+
+import importlib
+import re
+import runpy
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+#: What points outside the repository: the workspace's shared folder and absolute machine paths.
+OUTSIDE = re.compile(r"\.\./shared|\bshared/(paper|reference|tools)\b|/work/")
+TEXT = {".py", ".md", ".toml", ".txt", ".cfg", ".json", ".yml", ".yaml", ".sh", ".tex"}
+SKIPPED = {".git", ".venv", "__pycache__", ".pytest_cache", "ncedf.egg-info"}
+MODULES = ["scenarios.cluttered", "scenarios.spheres", "scenarios.charging", "scenarios.window", "scenarios.cabinet",
+           "scenarios.pipe", "scenarios.slot", "scenarios.pillars", "scenarios.custom", "scenarios.sweep",
+           "scenarios.reproduce", "ncedf.train", "ncedf.evaluate", "analysis.make_tables", "analysis.make_figures",
+           "recorder.inspect", "recorder.synthetic"]
+SCRIPTS = sorted(p for p in [*(ROOT / "bench").glob("*.py"), ROOT / "analysis" / "bench_read.py"]
+                 if '__name__ == "__main__"' in p.read_text())
+
+
+def repository_files():
+    for path in ROOT.rglob("*"):
+        if path.is_file() and not SKIPPED & set(path.relative_to(ROOT).parts) and (path.suffix in TEXT or
+                                                                                  path.parent.name == ".ci"):
+            yield path
+
+
+def test_the_readme_is_a_short_guide():
+    assert len((ROOT / "README.md").read_text().splitlines()) <= 120
+
+
+def test_nothing_refers_to_a_file_outside_the_repository():
+    found = [f"{path.relative_to(ROOT)}:{n}: {line.strip()}" for path in repository_files()
+             for n, line in enumerate(path.read_text(errors="replace").splitlines(), 1)
+             if OUTSIDE.search(line) and path != Path(__file__).resolve()]
+    assert not found, "\n".join(found)
+
+
+def option_entries(help_text: str) -> list[list[str]]:
+    """The lines of each option's entry in an argparse help text (its flags' line and what follows,
+    indented deeper)."""
+    entries, current = [], None
+    for line in help_text.splitlines():
+        if re.match(r"^  -", line):
+            current = [line]
+            entries.append(current)
+        elif current is not None and line.startswith("   "):
+            current.append(line)
+        else:
+            current = None
+    return entries
+
+
+def help_of(run, capsys) -> str:
+    with pytest.raises(SystemExit) as stop:
+        run()
+    assert stop.value.code == 0
+    return capsys.readouterr().out
+
+
+def long_entries(text: str) -> list[str]:
+    return [entry[0].strip() for entry in option_entries(text) if len(entry) > 2]
+
+
+@pytest.mark.parametrize("module", MODULES)
+def test_every_option_of_a_command_is_at_most_two_lines(module, capsys, monkeypatch):
+    monkeypatch.setenv("COLUMNS", "80")
+    text = help_of(lambda: importlib.import_module(module).main(["--help"]), capsys)
+    assert option_entries(text) and not long_entries(text)
+
+
+@pytest.mark.parametrize("script", SCRIPTS, ids=lambda p: p.name)
+def test_every_option_of_a_benchmark_is_at_most_two_lines(script, capsys, monkeypatch):
+    monkeypatch.setenv("COLUMNS", "80")
+    monkeypatch.setattr(sys, "argv", [str(script), "--help"])
+    monkeypatch.syspath_prepend(str(script.parent))
+    text = help_of(lambda: runpy.run_path(str(script), run_name="__main__"), capsys)
+    assert option_entries(text) and not long_entries(text)
