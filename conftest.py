@@ -3,17 +3,15 @@ on the import path, where tests/recorder would hide the recorder package).
 
 XLA builds the tests' programs at backend optimisation level 0 (no LLVM optimisation of the
 generated code) and with its older CPU fusion emitters (not the MLIR ones): on a 2-core machine
-most of the suite's time is compilation, not execution. Level 0 took the suite from 576 to
-464 s; the older emitters then take ``tests/ncedf/test_mppi.py`` from 64 to 39 s,
-``test_route.py`` with ``test_oracle.py`` from 84 to 52 s and the suite from 589 to 365 s,
-compiling the same operations (two programs may then round 1 ulp apart where they fuse apart).
+most of the suite's time is compilation, not execution, and both compile the same operations
+faster (two programs may then round 1 ulp apart where they fuse apart; the measurements are in
+``docs/experiments.md``).
 The commands and benchmarks keep XLA's defaults. A setting already in ``XLA_FLAGS`` is kept,
 and the commands the tests start as subprocesses inherit these.
 
 The session's processes (the two workers and the commands they start) also share a persistent
 JAX compilation cache in a temporary folder, removed at the end: a program one of them compiled
-is loaded, not compiled again, by the others (the cluttered command's tiny run: 43 s, 20 s with
-the cache warm). A loaded program is the compiled one, so results are unchanged. A cache folder
+is loaded, not compiled again, by the others. A loaded program is the compiled one, so results are unchanged. A cache folder
 already in ``JAX_COMPILATION_CACHE_DIR`` is used as it is and kept.
 """
 

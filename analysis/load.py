@@ -3,10 +3,9 @@
 Every table and figure starts from :func:`load`: the per-run table of
 ``recorder.read.load_summaries`` (outcome, metadata and per-metric count / mean / std / min / max /
 last value), with the unreadable, unclosed and unfinished recordings listed in ``problems`` and left
-out. A closed .mcap is read from its footer and summary section only: 0.5 ms per 300-step cluttered
-recording (10 MB) against 32 ms for reading its chunks (``recorder.load_runs``), 2 s for 4000
-(``python analysis/bench_read.py RECORDING --copies 400``, 2 shared cores); recordings without the
-summary record (.rrd, unclosed, written before it existed) still cost a full read. A figure that
+out. A closed .mcap is read from its footer and summary section only, not its chunks
+(``python analysis/bench_read.py`` times both); recordings without the summary record (.rrd,
+unclosed, written before it existed) still cost a full read. A figure that
 draws a run's steps reads that run with ``recorder.load_run``. :func:`pooled` gives the mean and
 std over every step of many runs, exactly, from their per-run statistics.
 """

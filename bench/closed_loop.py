@@ -30,8 +30,8 @@ step's time, the variants in turn so that all see the same load
 (``solver_time.solver_times``); printed: median and mean +- std ms per step and
 the ratio of each median to ``paper``'s.
 
-Results: ``results/README.md``; the history of the experiments:
-``results/history/controller-experiments.md``.
+Results: ``docs/experiments.md``; the history of the experiments:
+``docs/controller-experiments.md``.
 """
 
 from __future__ import annotations
@@ -41,6 +41,7 @@ import dataclasses
 import json
 import math
 import sys
+import textwrap
 import time
 from collections import defaultdict
 from pathlib import Path
@@ -260,15 +261,15 @@ def positive_arg(name: str):
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], epilog=__doc__,
+    listed = textwrap.fill(", ".join(VARIANTS), width=98, initial_indent="  ", subsequent_indent="  ")
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], epilog=f"{__doc__}\nVARIANTS:\n{listed}\nworlds: {', '.join(WORLDS)}\n",
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--variants", default="release,ours,paper",
+    p.add_argument("--variants", default="release,ours,paper", metavar="LIST",
                    type=parse_variants,
-                   help=f"comma-separated, from: {', '.join(VARIANTS)}, or PRESET:STAGE.FIELD=VALUE[:...] "
-                        "(default release,ours,paper)")
-    p.add_argument("--scenarios", default="cluttered,spheres",
+                   help="VARIANTS below or PRESET:STAGE.FIELD=VALUE[:...], comma-separated (default release,ours,paper)")
+    p.add_argument("--scenarios", default="cluttered,spheres", metavar="LIST",
                    type=lambda t: parse_list(t, str, "scenario", ("cluttered", "spheres") + WORLDS),
-                   help=f"comma-separated, from cluttered, spheres, {', '.join(WORLDS)} (default cluttered,spheres)")
+                   help="comma-separated: cluttered, spheres or worlds (below); default cluttered,spheres")
     p.add_argument("--links", default="4,5,7", type=lambda t: parse_list(t, int, "links", above_zero=True),
                    help="cluttered link counts (default 4,5,7)")
     p.add_argument("--seeds", type=positive, default=3, help="cluttered controller seeds per link count (default 3)")

@@ -214,8 +214,7 @@ def main(argv=None):
     p.add_argument("--steps", type=int, default=20, help="timed broad-phase steps after compilation")
     p.add_argument("--ref-steps", type=int, default=2, help="timed brute-force steps (same inputs), >= 2")
     p.add_argument("--reps", default=DEFAULT_REPS,
-                   help=f"default {DEFAULT_REPS}; add pointcloud:5000 explicitly "
-                        "(its brute force takes minutes per step)")
+                   help="comma-separated representations (default " + DEFAULT_REPS.replace(",", ", ") + ")")
     p.add_argument("--k1", type=int, default=BroadPhase.k1)
     p.add_argument("--k2", type=int, default=BroadPhase.k2)
     p.add_argument("--model", default=None, help="N-CEDF weights (default: the shipped model)")

@@ -119,8 +119,8 @@ class Reach:
 def main(argv=None) -> int:
     p = OneLineParser(prog="python bench/sphere_base_hits.py", description=__doc__.split("\n\n")[0])
     p.add_argument("--envs", type=positive, default=200, help="environments 0..N-1 (default 200)")
-    p.add_argument("--goal", type=goal_text, default="fixed", metavar="fixed|random|X,Y,Z",
-                   help="goal kind or position, m (--goal=-4,0,4 when X is negative; default fixed)")
+    p.add_argument("--goal", type=goal_text, default="fixed", metavar="GOAL",
+                   help="fixed, random or X,Y,Z in m (default fixed)")
     p.add_argument("--dt", type=float, default=0.005, help="time sampling, s (default 0.005)")
     p.add_argument("--runs", help="folder of sphere recordings to compare with")
     p.add_argument("--starts", type=positive, default=64, help="starts of each closest-approach search (default 64)")

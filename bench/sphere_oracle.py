@@ -16,7 +16,7 @@ environments is an estimate of the collision rate no controller can go below.
     python bench/sphere_oracle.py --env0 40 --envs 10
 
 Measured (default horizons and starts, 2-core CPU, 2026-11-30) against the
-Table III sweeps of ``results/README.md`` (N-CEDF; ``ours`` and, for random
+Table III sweeps of ``docs/experiments.md`` (N-CEDF; ``ours`` and, for random
 goals, ``release``):
 
   fixed goal (``--runs runs/table3``, 397 s): 12 collided environments; a
@@ -90,8 +90,8 @@ def main(argv=None) -> int:
     p = OneLineParser(prog="python bench/sphere_oracle.py", description=__doc__.split("\n\n")[0])
     p.add_argument("--envs", type=int, default=200, help="environments env0 .. env0 + N - 1 (default 200)")
     p.add_argument("--env0", type=int, default=0, help="first environment (default 0)")
-    p.add_argument("--goal", type=goal_text, default="fixed", metavar="fixed|random|X,Y,Z",
-                   help="goal kind or position, m (--goal=-4,0,4 when X is negative; default fixed)")
+    p.add_argument("--goal", type=goal_text, default="fixed", metavar="GOAL",
+                   help="fixed, random or X,Y,Z in m (default fixed)")
     p.add_argument("--horizons", default=",".join(map(str, HORIZONS)),
                    help=f"horizons to try, steps (default {','.join(map(str, HORIZONS))})")
     p.add_argument("--starts", type=int, default=OracleConfig.starts,

@@ -321,8 +321,8 @@ def _tree_min(x: jnp.ndarray, axis: int) -> jnp.ndarray:
     """Minimum over ``axis`` by halving with element-wise ``minimum`` (the axis is dropped).
 
     XLA's CPU reductions do not vectorise a computation fused into them: a
-    ``min`` over the bounds of every (link, group) pair ran 40x slower than the
-    bounds themselves. Element-wise minimums of halves do vectorise.
+    ``min`` over the bounds of every (link, group) pair ran many times slower
+    than the bounds themselves. Element-wise minimums of halves do vectorise.
     """
     while x.shape[axis] > 1:
         half = x.shape[axis] // 2

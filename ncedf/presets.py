@@ -33,7 +33,7 @@
     guide's path.
 
 Nothing here depends on a scenario: a world is described by :class:`Observation`.
-The evidence for each choice is in ``results/README.md``.
+The evidence for each choice is in ``docs/experiments.md``.
 """
 
 from __future__ import annotations

@@ -258,8 +258,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--layers", type=int, default=4, help="Dense layers incl. output (default 4)")
     p.add_argument("--width", type=int, default=16, help="hidden width (default 16)")
     p.add_argument("--encoding", choices=ENCODINGS, default="bending-plane")
-    p.add_argument("--output", choices=OUTPUTS, default="signed-abs",
-                   help="distance: the network is the distance (paper); signed-abs: |learned signed distance|")
+    p.add_argument("--output", choices=OUTPUTS, default="signed-abs", metavar="KIND",
+                   help="distance (the network is the distance: the paper's) or signed-abs (|its signed distance|, "
+                        "default)")
     p.add_argument("--epochs", type=int, default=100)
     p.add_argument("--batch-size", type=int, default=256)
     p.add_argument("--lr", type=float, default=3e-3, help="peak learning rate")
@@ -276,8 +277,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--val-configs", type=int, default=100)
     p.add_argument("--val-points", type=int, default=4096)
     p.add_argument("--length", type=float, default=2.0, help="link backbone length L, m (default 2, the paper's)")
-    p.add_argument("--radius", type=float, nargs="+", default=[0.2],
-                   help="link radius r, m (default 0.2); one per link from the base for a tapered robot")
+    p.add_argument("--radius", type=float, nargs="+", default=[0.2], metavar="R",
+                   help="link radius, m (default 0.2); one per link from the base: a tapered robot")
     p.add_argument("--arc-min", type=float, default=1.6, help="shortest chamber arc length, m (default 1.6)")
     p.add_argument("--arc-max", type=float, default=2.4, help="longest chamber arc length, m (default 2.4)")
     p.add_argument("--seed", type=int, default=0)

@@ -37,8 +37,9 @@ Where each event goes (names in `recorder.schema`; MCAP topics = Rerun entity pa
 | `/log` text | TextLog | foxglove.Log |
 
 Rerun: timelines `step` and `sim_time` (wall clock off), a stored default blueprint (3D view of
-`/world` on a dark background; distances with the safety margin `/reference/safety_margin` and the
-goal tolerance `/reference/goal_tolerance`; solver time; all metrics; log).
+`/world` on a dark background; the goal distance with the goal tolerance `/reference/goal_tolerance`;
+the clearances with the safety margin `/reference/safety_margin`; solver time; the other metrics; the log
+of the run's events).
 MCAP: log_time = sim_time in ns. Scalars are float64 in both formats; `sim_time` is kept to 1 ns.
 
 Display (`recorder.style`): links coloured by `link_clearance` from red (collision) through orange
@@ -60,9 +61,7 @@ current step finish, then write the outcome "interrupted" and close both files; 
 refused unless `overwrite=True`; an unwritable folder fails before anything is opened
 (`RecorderError`, one line naming the path).
 
-Cost (bench/recording_cost.py, 7 links, 6720-vertex mesh every step, with link clearances): about 0.5 ms
-CPU per step for the .rrd, 1.5 ms for the .mcap (zstd level 2), 2.2 ms for both; 9 and 10 MB per 100
-steps (the clearance colours add about 0.15 ms to the .rrd and 0.3 ms to the .mcap). A live viewer
+Cost: `python bench/recording_cost.py` measures the time per step and the file sizes. A live viewer
 adds one `send_columns` per entity and step on a second stream.
 
 Many runs in one process: rerun-sdk keeps each recording's threads and about 1 MB alive until the

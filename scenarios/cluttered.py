@@ -143,10 +143,9 @@ def main(argv: list[str] | None = None) -> int:
     parser = make_parser("cluttered", __doc__, max_steps=MAX_STEPS)
     parser.add_argument("--density", help=f"observed points per square metre of box face (default {DENSITY}, "
                                           "the paper's)")
-    parser.add_argument("--goal", default="fixed", metavar="fixed|random|X,Y,Z",
-                        help=f"fixed: the paper's {GOAL}; random: the end effector of a random configuration "
-                             "clear of the boxes, behind them (drawn from --env-seed); X,Y,Z: that position, m, "
-                             "written --goal=-1,2,3 when X is negative (default fixed)")
+    parser.add_argument("--goal", default="fixed", metavar="GOAL",
+                        help=f"fixed (the paper's {GOAL}, default), random (behind the boxes, from --env-seed) "
+                             "or X,Y,Z in m")
 
     def settings(args) -> EpisodeSettings:
         options = (("density", args.density),) if args.density is not None else ()

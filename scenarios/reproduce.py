@@ -394,10 +394,10 @@ def parse_args(argv=None):
     p.add_argument("--quick", action="store_true", help="a smoke-sized version of every experiment (minutes)")
     p.add_argument("--epochs", type=int, help=f"training epochs per network (default {PAPER_EPOCHS}, quick 1)")
     p.add_argument("--envs", type=int, help=f"Table III environments per representation (default {EpisodeBudget.envs})")
-    p.add_argument("--envs-5000", type=int, help=f"Table III environments for pointcloud:5000 "
-                                                 f"(default {EpisodeBudget.envs_5000})")
+    p.add_argument("--envs-5000", type=int, metavar="N",
+                   help=f"Table III environments for pointcloud:5000 (default {EpisodeBudget.envs_5000})")
     p.add_argument("--seeds", type=int, help=f"Table IV seeds (default {EpisodeBudget.seeds})")
-    p.add_argument("--timing-repeats", type=int,
+    p.add_argument("--timing-repeats", type=int, metavar="N",
                    help=f"timed steps per network or timing case (default {TimingBudget.repeats}, "
                         f"quick {QUICK.timing.repeats})")
     p.add_argument("--workers", type=int, help="sweep worker processes (default: one per core)")

@@ -95,9 +95,8 @@ def build(settings: EpisodeSettings) -> Scene:
 
 def main(argv: list[str] | None = None) -> int:
     parser = make_parser("spheres", __doc__, max_steps=MAX_STEPS)
-    parser.add_argument("--goal", default="fixed", metavar="fixed|random|X,Y,Z",
-                        help="fixed: (4, 0, 4); random: the end effector of a random valid configuration; "
-                             "X,Y,Z: that position, m, written --goal=-4,0,4 when X is negative (default fixed)")
+    parser.add_argument("--goal", default="fixed", metavar="GOAL",
+                        help="fixed ((4, 0, 4), default), random (the tip of a random configuration) or X,Y,Z in m")
     return run_cli(parser, argv, lambda args: base_settings("spheres", args, goal=args.goal))
 
 

@@ -51,12 +51,6 @@ At the end a table gives, per scenario, links, representation and controller,
 the outcome rates with their counts (read back from the recordings), the mean
 solver time per step, and the episodes per hour of one worker (3600 / the mean
 wall time of the episodes run this time, compilation included).
-
-Throughput measured on a 2-core CPU machine shared with other work
-(``--scenario spheres --envs 4 --shapes ncedf,spheres,pointcloud:1000 --workers 2``,
-release controller, 1000 rollouts, H = 12; 21-134 steps per episode, all successes):
-per worker 255 episodes/h with ncedf (126 ms per MPPI step), 512 with spheres
-(98 ms), 26 with pointcloud:1000 (2.5 s); the 12 episodes took 6.6 min.
 """
 
 from __future__ import annotations
@@ -634,8 +628,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     ep.add_argument("--samples", type=int, help="MPPI rollouts (default: the controller's)")
     ep.add_argument("--horizon", type=int, help="MPPI horizon (default: the controller's)")
     ep.add_argument("--max-steps", type=int, help="step budget (default: the scenario's)")
-    ep.add_argument("--goal", metavar="GOAL", help=f"{', '.join(GOALS)} or a position X,Y,Z in m (spheres and "
-                                                   "cluttered; --goal=-4,0,4 when X is negative; "
+    ep.add_argument("--goal", metavar="GOAL", help=f"{', '.join(GOALS)} or X,Y,Z in m (spheres and cluttered; "
                                                    f"default {EpisodeSettings.goal})")
     ep.add_argument("--model", help="N-CEDF weights: the robot's links and its network (default: the shipped model)")
     ep.add_argument("--option", type=_option, action="append", default=[], metavar="KEY=VALUE",

@@ -37,8 +37,7 @@ DISTANCE_ERROR_BOUND = CERTIFIED + 0.001
 _CHUNK = 8
 # The judge's time goes in running its batched program, not in compiling it (every substep of every step
 # runs the branch and bound): it is compiled at XLA's full optimisation, its default level, even where a
-# process lowers the level in XLA_FLAGS as the test session does (conftest.py; 6x faster there, 4 s more
-# to compile).
+# process lowers the level in XLA_FLAGS as the test session does (conftest.py).
 _OPTIMISED = {"xla_backend_optimization_level": 3}
 
 
