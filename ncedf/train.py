@@ -39,6 +39,7 @@ from ncedf.metrics import NEAR_FIELD, distance_metrics
 from ncedf.model import (ENCODINGS, MLP, NCEDF, OUTPUTS, ModelConfig, encode, init_params, model_spec, save_model,
                          stack_links)
 from ncedf.robot import RobotSpec
+from ncedf.train_state import TrainState
 from ncedf.units import to_reference, unit
 
 SCHEDULES = ("cosine", "constant")
@@ -193,6 +194,13 @@ def evaluate_model(model: NCEDF, data: LinkDataset) -> dict:
     return distance_metrics(pred, data.distances, surface, NEAR_FIELD * unit(model.spec))
 
 
+def initial_state(model_cfg: ModelConfig, cfg: TrainConfig, optimizer: optax.GradientTransformation) -> TrainState:
+    """A fresh run's state: parameters and key from ``cfg.seed``, no epoch done."""
+    key, k_init = jax.random.split(jax.random.PRNGKey(cfg.seed))
+    params = init_params(k_init, model_cfg)
+    return TrainState(0, params, optimizer.init(params), key)
+
+
 def train(
     model_cfg: ModelConfig,
     cfg: TrainConfig,
@@ -202,38 +210,38 @@ def train(
     progress: bool = True,
     domain: tuple = (BOX_MIN, BOX_MAX),
     on_epoch=None,
+    resume=None,
 ) -> tuple[NCEDF, list[dict]]:
     """Train a link network; returns the model and per-epoch history.
 
     ``domain`` is the box (link frame, m) the training points cover;
-    ``on_epoch(row)``, if given, receives each epoch's history row.
+    ``on_epoch(row, state)``, if given, receives each epoch's history row and the
+    :class:`ncedf.train_state.TrainState` after it (to save); ``resume(template)``, if given, returns
+    the state to go on from (or None to start afresh) given a fresh run's first state.
     """
     x, y = training_arrays(data, model_cfg)
     n = int(y.shape[0])
     if n < cfg.batch_size:
         raise ValueError(f"the training set has {n} samples, fewer than batch_size {cfg.batch_size}")
-    key = jax.random.PRNGKey(cfg.seed)
-    key, k_init = jax.random.split(key)
-    params = init_params(k_init, model_cfg)
     optimizer = make_optimizer(cfg, cfg.epochs * (n // cfg.batch_size))
-    opt_state = optimizer.init(params)
+    state = initial_state(model_cfg, cfg, optimizer)
+    state = (resume(state) if resume is not None else None) or state
     epoch = make_epoch(model_cfg, cfg, optimizer, n)
-    history = []
-    bar = tqdm(range(cfg.epochs), desc="train", unit="epoch", disable=not progress, file=sys.stderr)
+    bar = tqdm(range(state.epoch, cfg.epochs), desc="train", unit="epoch", disable=not progress, file=sys.stderr,
+               initial=state.epoch, total=cfg.epochs)
     for i in bar:
-        key, k_epoch = jax.random.split(key)
+        key, k_epoch = jax.random.split(state.key)
         start = time.perf_counter()
-        params, opt_state, terms = epoch(params, opt_state, k_epoch, x, y)
+        params, opt_state, terms = epoch(state.params, state.opt_state, k_epoch, x, y)
         terms = {k: float(v) for k, v in terms.items()}
         seconds = time.perf_counter() - start
-        model = NCEDF(params=params, config=model_cfg, spec=spec, domain=domain)
-        metrics = evaluate_model(model, val)
+        metrics = evaluate_model(NCEDF(params=params, config=model_cfg, spec=spec, domain=domain), val)
         row = {"epoch": i + 1, "seconds": seconds, "samples_per_second": n / seconds, **terms, **metrics}
-        history.append(row)
+        state = TrainState(i + 1, params, opt_state, key, state.history + (row,))
         if on_epoch is not None:
-            on_epoch(row)
+            on_epoch(row, state)
         bar.set_postfix(mae=f"{metrics['mae']:.4f}", moe=f"{metrics['moe']:.4f}", near_mae=f"{metrics['near_mae']:.4f}")
-    return NCEDF(params=params, config=model_cfg, spec=spec, domain=domain), history
+    return NCEDF(params=state.params, config=model_cfg, spec=spec, domain=domain), list(state.history)
 
 
 def _output_problem(stem: Path, overwrite: bool) -> str | None:
@@ -380,7 +388,7 @@ def main(argv=None) -> int:
             start = time.perf_counter()
             logged = []
 
-            def record(row):  # epochs of every link in turn, numbered on
+            def record(row, _):  # epochs of every link in turn, numbered on
                 logged.append(row)
                 if rec is not None:
                     rec.log_step(len(logged), float(len(logged)),

@@ -29,8 +29,9 @@ package versions (quick results are marked there and in every table).
   4 links), ``--timing-repeats`` timed steps each, recorded as ``solver_ms`` rows.
 
 Tables III and IV and the worlds run through ``scenarios.sweep.run_sweep``. Everything resumes:
-a network or episode whose recording is closed with a final outcome is skipped,
-so the same command finishes an interrupted experiment.
+a network or episode whose recording is closed with a final outcome is skipped, and a network
+stopped midway goes on from its last finished epoch (its training state is saved after each), so
+the same command finishes an interrupted experiment.
 
 ``--quick`` shrinks every experiment (Table I: 2 and 4 layers x width 16, both
 encodings, 1 epoch on a 20-configuration, 12^3-grid set; 64 MPPI samples,
@@ -39,12 +40,13 @@ links and 250 / 1000 points) so that
 ``all --quick`` runs in minutes on a laptop; its numbers only show the pipeline works.
 
 Ctrl-C / SIGTERM: the network being trained is recorded as interrupted (the
-next run trains it again), complete recordings are kept; exit 130 / 143.
+next run goes on from its last epoch), complete recordings are kept; exit 130 / 143.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
 import signal
 import sys
@@ -74,6 +76,8 @@ TABLES = ("table1", "table2", "table3", "table4", "worlds", "timing")
 #: The controllers run in the worlds beyond the paper's (``scenarios.WORLDS``).
 WORLD_CONTROLLERS = ("ours", "paper")
 PAPER_EPOCHS = 100
+#: Beside a network's recording while it trains: its training state after the last epoch done.
+STATE_SUFFIX = ".state.msgpack"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -238,11 +242,19 @@ def inference_times_ms(model, points, repeats: int, seed: int = 0) -> list[float
     return evaluate.inference_times_ms(model, points, arc, repeats)
 
 
+def log_epoch(rec, row: dict) -> None:
+    """One epoch's history row as a recording's step."""
+    rec.log_step(row["epoch"], float(row["epoch"]), metrics={k: float(v) for k, v in row.items() if k != "epoch"})
+
+
 def train_network(net: Network, where: Path, budget: Budget, data, val, points, seed: int) -> None:
-    """Train, evaluate and time one network; record it to ``where/<net.name>.mcap``, weights beside it."""
+    """Train, evaluate and time one network; record it to ``where/<net.name>.mcap``, weights beside it.
+    After each epoch the training state is saved beside them (``STATE_SUFFIX``), so a run stopped
+    midway (Ctrl-C, a kill) goes on from its last epoch, with the floats of a run never stopped."""
     from ncedf.model import ModelConfig, save_model
     from ncedf.robot import RobotSpec
     from ncedf.train import TrainConfig, train
+    from ncedf.train_state import load_state, save_state
     from recorder import Recorder
 
     spec = RobotSpec(n_links=1)
@@ -256,12 +268,19 @@ def train_network(net: Network, where: Path, budget: Budget, data, val, points, 
             "timing": {"links": TIMING_LINKS, "inference_points": int(len(points)),
                        "mppi_samples": budget.timing.samples, "mppi_horizon": budget.timing.horizon,
                        "mppi_points": int(len(points)), "repeats": budget.timing.repeats}}
+    saved, fingerprint = where / f"{net.name}{STATE_SUFFIX}", json.dumps(meta, sort_keys=True)
     with Recorder(where / net.name, meta, ("mcap",), overwrite=True) as rec:
-        def record(row):
-            rec.log_step(row["epoch"], float(row["epoch"]),
-                         metrics={k: float(v) for k, v in row.items() if k != "epoch"})
+        def record(row, state):
+            log_epoch(rec, row)
+            save_state(saved, state, fingerprint)
 
-        model, history = train(model_cfg, cfg, data, val, spec, progress=False, on_epoch=record)
+        def resume(template):  # a run stopped midway goes on from its last epoch, recorded again
+            state = load_state(saved, template, fingerprint)
+            for row in state.history if state is not None else ():
+                log_epoch(rec, row)
+            return state
+
+        model, history = train(model_cfg, cfg, data, val, spec, progress=False, on_epoch=record, resume=resume)
         inference = inference_times_ms(model, points, budget.timing.repeats, seed)
         mppi = mppi_step_ms(model, points, budget, seed)
         for i, (a, b) in enumerate(zip(inference, mppi)):
@@ -270,6 +289,7 @@ def train_network(net: Network, where: Path, budget: Budget, data, val, points, 
         save_model(where / net.name, model.params, model_cfg, spec,
                    {"metrics": {k: v for k, v in history[-1].items() if k != "epoch"}}, model.domain)
         rec.finish({"outcome": "success", "steps": len(history)})
+    saved.unlink()
 
 
 def run_networks(table: str, out: Path, budget: Budget, seed: int, command: str) -> int:

@@ -18,6 +18,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import jax
 import numpy as np
 import pandas as pd
 import pytest
@@ -207,6 +208,43 @@ def test_table2_metrics_match_the_saved_networks(folder, tables):
         assert row.epochs == TINY_BUDGET.networks.epochs and row.timing_repeats == TINY_BUDGET.timing.repeats
         assert row.inference_ms_mean > 0 and row.mppi_step_ms_mean > 0 and row.quick
     assert "(quick)" in (out / "table2.md").read_text() and "0.017 / 0.024 / 0.002" in done.stdout
+
+
+def test_a_network_stopped_midway_goes_on_from_its_last_epoch(folder, tmp_path, monkeypatch):
+    """The first network of Table II stopped after its first epoch (its state saved, its recording
+    interrupted), then trained again: its recording holds every epoch once and its weights are those of
+    the fixture's run, never stopped; no training state is left beside either."""
+    import ncedf.train_state
+    from recorder import load_run
+
+    runs, _, _ = folder
+    done = reproduce.folder(runs, "table2", TINY_BUDGET)
+    assert not list(done.glob(f"*{reproduce.STATE_SUFFIX}"))
+    net = reproduce.networks("table2", TINY_BUDGET)[0]
+    spec = RobotSpec(n_links=1)
+    nets = TINY_BUDGET.networks
+    data = load_dataset(DatasetConfig(n_configs=nets.configs, grid=nets.grid, n_surface=nets.surface), spec)
+    val = load_dataset(ValidationConfig(n_configs=nets.val_configs, n_points=nets.val_points,
+                                        n_surface=nets.val_surface), spec)
+    points = reproduce.timing_points(reproduce.INFERENCE_POINTS)
+    save = ncedf.train_state.save_state
+
+    def save_then_stop(path, state, fingerprint):
+        save(path, state, fingerprint)
+        raise KeyboardInterrupt  # as Ctrl-C after the first epoch
+
+    monkeypatch.setattr(ncedf.train_state, "save_state", save_then_stop)
+    with pytest.raises(KeyboardInterrupt):
+        reproduce.train_network(net, tmp_path, TINY_BUDGET, data, val, points, seed=0)
+    assert load_run(tmp_path / f"{net.name}.mcap").outcome["outcome"] == "interrupted"
+    monkeypatch.setattr(ncedf.train_state, "save_state", save)
+    reproduce.train_network(net, tmp_path, TINY_BUDGET, data, val, points, seed=0)
+    run = load_run(tmp_path / f"{net.name}.mcap")
+    assert run.outcome["outcome"] == "success" and list(run.metrics["step"][:nets.epochs]) == [1, 2]
+    again, before = load_model(tmp_path / net.name), load_model(done / net.name)
+    assert all(np.array_equal(a, b) for a, b in zip(jax.tree_util.tree_leaves(again.params),
+                                                    jax.tree_util.tree_leaves(before.params), strict=True))
+    assert not list(tmp_path.glob(f"*{reproduce.STATE_SUFFIX}"))
 
 
 def test_missing_tables_name_their_command(tables):

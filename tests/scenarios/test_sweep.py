@@ -259,6 +259,30 @@ def test_sigterm_stops_the_workers_too(tmp_path):
     assert started and not [pid for pid in started if alive(pid)]
 
 
+def test_a_sweep_killed_midway_finishes_every_episode_once_when_run_again(swept, tmp_path):
+    """SIGKILL to the sweep and its worker (nothing closed) once an episode is complete; the same
+    command then finishes the sweep: every episode once and complete, the finished ones kept."""
+    out = tmp_path / "runs"
+    shutil.copytree(swept[0] / JAX_CACHE, out / JAX_CACHE)
+    command = [sys.executable, "-m", "scenarios.sweep", *TINY, "--max-steps", str(STEPS), "--envs", "3",
+               "--workers", "1", "--out", str(out)]
+    stems = [out / episode_name(tiny(e)) for e in range(3)]
+    proc = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    deadline = time.monotonic() + 120
+    while not any(read_complete(s, ("mcap",)) for s in stems) and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.02)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.communicate()
+    finished = {s: s.with_suffix(".mcap").stat().st_mtime_ns for s in stems if read_complete(s, ("mcap",))}
+    assert 0 < len(finished) < len(stems)  # killed midway
+    done = subprocess.run(command, capture_output=True, text=True, timeout=240)
+    assert done.returncode == 0, done.stderr
+    assert [p.stem for p in episode_files(out)] == sorted(s.name for s in stems)
+    assert all(read_complete(s, ("mcap",)) for s in stems)
+    assert {s: s.with_suffix(".mcap").stat().st_mtime_ns for s in finished} == finished
+
+
 def test_recycled_workers_finish_the_sweep(swept, tmp_path):
     """``--recycle 2`` replaces the worker once in 3 episodes (a pool's max_tasks_per_child hung at the first)."""
     out = tmp_path / "runs"
