@@ -19,22 +19,7 @@ than 2 cm (those rollouts look safer than they are), and the largest
 over-estimate; the time of one call of each (N x H states, mean of ``--repeats``
 after compilation) and their ratio.
 
-Measured (``--densities 4,16 --links 4,5,7 --states 3``; 2 shared CPU cores,
-so the times are noisy; 16800-48000 rollout states per row):
-
-  4 points per m^2 (510 points): ``mean`` agrees with brute force on
-    99.79-99.90% of the states and over-estimates 0.05-0.17% by more than
-    2 cm (by up to 0.45 m); ``state`` 98.5-99.0%, 0.42-0.56%, up to 0.20 m
-    (its block selection loses about one candidate in ten). Times: mean
-    34-116 ms, state 75-253 ms (2.1-2.3x).
-  16 points per m^2 (1858 points): ``mean`` 91.7-97.2%, 2.1-4.8%, up to
-    1.17 m; ``state`` 94.5-99.4%, 0.19-1.32%, up to 0.21 m. Times: mean
-    41-110 ms, state 104-527 ms (2.4-4.8x).
-
-So ``mean`` (the default) suits the paper's density, and its error grows
-with the density: its candidates per (horizon step, link) cover a fixed
-number of points, so a smaller area. ``state`` bounds the error better
-everywhere but costs 2-5x on this CPU.
+The printed figures, measured, are in ``docs/experiments.md``.
 """
 
 from __future__ import annotations

@@ -16,12 +16,7 @@ controller fits them (its boxes, and its moving spheres as balls). Printed per
 link count: both forms' time per call (median of ``--repeats`` after
 compilation), their ratio, and their largest difference.
 
-Measured on this machine's 2 shared CPU cores (``--links 4,5,7 --repeats 10``;
-5 clusters: 3 boxes and 2 balls): passes 22.8 / 33.1 / 11.5 ms with 4 / 5 / 7
-links, all at once 36.3 / 48.4 / 23.4 ms (1.59 / 1.46 / 2.04x: it computes
-every plane slot of every cluster, where the loop skips what a cluster lacks);
-they agree to 4.8e-7 m. Not yet run on a GPU, where the passes run one after
-another and the form for all at once is the one used.
+The printed figures, measured, are in ``docs/experiments.md``.
 """
 
 from __future__ import annotations

@@ -17,20 +17,7 @@ plan time of each (after one untimed plan that compiles), their ratio, and in
 how many starts both found the same route (they must: the shortest path over
 the clear edges), or both none.
 
-Measured on this machine's 2 CPU cores (the defaults, alone on the machine),
-median plan time lazy / eager, and the slowest lazy plan:
-
-  goal states by             4 links                 5 links                 7 links
-  400 gradient steps (12-01) 1.11 / 2.93 s (2.6x)    1.36 / 3.48 s (2.6x)    1.69 / 5.94 s (3.5x)
-  20 damped least-squares    0.36 / 1.53 s (4.3x),   0.54 / 2.66 s (4.9x),   0.83 / 4.58 s (5.5x),
-    steps (12-02)            slowest 0.55 s          slowest 3.37 s          slowest 0.92 s
-
-Every plan found a route, the same one both ways, in 5 of 5 starts per link
-count. The goal states' 400 gradient steps had been most of a plan's time:
-timed side by side (one-off, 3 draws of the 300 candidates, while the test
-suite ran) 0.6-1.1 s with 4 links and 2.3-3.4 s with 7, where 20 damped
-least-squares steps took 0.07-0.12 s and 0.23-0.30 s, with the tips on the
-goal instead of 3 mm off and about as many goal states (20-39 per plan).
+The printed figures, measured, are in ``docs/experiments.md``.
 """
 
 from __future__ import annotations

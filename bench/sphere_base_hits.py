@@ -22,18 +22,7 @@ and a one-off search over constant rates (which reach every state reachable in
 those steps: the control set is convex) from 4096 starts to 0.441 m; so
 "certain" holds up to those millimetres, far from the 0.2 m tolerance here.
 
-Measured (2026-12-02, ``--envs 1000``, 2-core CPU; the random goals need one search per hit, about
-half an hour):
-
-  fixed goal: 50 environments with a base hit, 14 certain (0.014): 53, 64,
-    226, 294, 327, 466, 524, 535, 692, 726, 729, 809, 902, 955 (hits at steps
-    3.2-8.0; within 7 steps the end effector stays 0.448 m from the goal,
-    within 5 steps 1.352 m). Of environments 0-199: 53 and 64 (0.010).
-  random goals: 47 with a base hit, 12 certain (0.012): 53, 274, 353, 376,
-    466, 524, 588, 692, 705, 726, 729, 749 (closest approaches 0.495-8.29 m).
-    Of environments 0-199: 53 (0.005).
-
-The paper's N-CEDF collision rate over its 1000 environments is 0.006.
+Measured over 1000 environments per goal kind: ``docs/experiments.md``.
 
 With ``--runs FOLDER`` (recordings of ``scenarios.sweep``/``reproduce``), it also
 lists the environments where the recorded episodes collided, the earliest

@@ -15,26 +15,7 @@ environments is an estimate of the collision rate no controller can go below.
     python bench/sphere_oracle.py --envs 200 --goal random --runs runs/table3_random
     python bench/sphere_oracle.py --env0 40 --envs 10
 
-Measured (default horizons and starts, 2-core CPU, 2026-11-30) against the
-Table III sweeps of ``docs/experiments.md`` (N-CEDF; ``ours`` and, for random
-goals, ``release``):
-
-  fixed goal (``--runs runs/table3``, 397 s): 12 collided environments; a
-    judged motion to the goal found in 8 (4, 25, 27, 72, 92, 133, 171, 188;
-    reach steps 8-10, where ``ours`` collided at steps 9-22), none in 4 (45,
-    53, 64, 93: spheres reach the robot at steps 4-9). Estimated floor 4 / 200
-    = 0.020; the base-disk bound of ``bench/sphere_base_hits.py`` proves 0.030
-    only for controllers no faster than ``ours``'s 18 steps, and 3 of those 6
-    environments are passed by reaching the goal at step 8.
-  random goals (``--runs runs/table3_random``, 291 s): 9 collided
-    environments; motions found in 8 (reach steps 8-30), none in 1 (53).
-    Estimated floor 1 / 200 = 0.005.
-  search power, fixed goal, all 200 environments (no ``--runs``, 1069 s): a
-    motion found in 196, at reach step 8 (150 environments) or 10 (46), so
-    in every environment where ``ours`` reached the goal; none in the same 4.
-
-The fastest reach of the fixed goal found is step 8 (0.4 s: the last two links'
-third chambers at 0.6 m/s throughout), against 18-20 for the controllers.
+The printed figures, measured, are in ``docs/experiments.md``.
 """
 
 from __future__ import annotations
