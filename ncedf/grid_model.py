@@ -22,13 +22,17 @@ without assuming convexity:
   the hit cells' centres less half a cell's diagonal); inside the closed cells
   minus the distance to the nearest free cell.
 
-Distance of a point x (:func:`grid_distance`): ``f(c) - |x - c|`` with c the cell
-nearest to x clamped into the grid. Proof that it is at most the distance d(x)
-from x to the observed points and the closed cells' centres: at a free c,
-``f(c)`` is at most the distance from c to them (a point p lies within
-``h sqrt(3) / 2`` of its cell's centre, so the hit cells' distance less that is
-at most |c - p|), and that distance is 1-Lipschitz; at a closed c it is
-negative. The robot's clearance
+Distance of a point x (:func:`grid_distance`): with q the point of the grid's box
+nearest to x (x itself inside it) and c the cell nearest to q, ``b = f(c) - |q - c|``
+inside the box and ``sqrt(|x - q|^2 + max(b, 0)^2)`` outside it. Proof that it is at
+most the distance d(x) from x to the observed points and the closed cells' centres:
+at a free c, ``f(c)`` is at most the distance from c to them (a point p lies within
+``h sqrt(3) / 2`` of its cell's centre, so the hit cells' distance less that is at
+most |c - p|), and that distance is 1-Lipschitz, so b <= d(q); at a closed c, b is
+negative. Outside the box, every observed point and cell centre o lies in the box,
+a convex set of which q is the projection of x, so ``(x - q) . (o - q) <= 0`` and ``|x - o|^2 >= |x - q|^2 +
+|q - o|^2 >= |x - q|^2 + max(b, 0)^2``. (Bounding outside by ``f(c) - |x - c|`` alone
+made a link above a low obstacle's grid look deep inside it.) The robot's clearance
 (:func:`grid_clearance`) is that at the centres of the balls that cover each link
 (``ncedf.convex.COVER_SPHERES``), less their radii.
 
@@ -186,10 +190,12 @@ def grid_distance(grid: Grid, x: jnp.ndarray) -> jnp.ndarray:
     """(...,) lower bound of the distance from points x (..., 3) to the observed static points, m
     (module docstring; negative inside the closed surfaces)."""
     size = jnp.asarray(grid.values.shape)
-    cell = jnp.clip(jnp.rint((x - grid.origin) / grid.spacing), 0, size - 1).astype(jnp.int32)
+    q = jnp.clip(x, grid.origin, grid.origin + grid.spacing * (size - 1).astype(x.dtype))  # the box's nearest point
+    cell = jnp.clip(jnp.rint((q - grid.origin) / grid.spacing), 0, size - 1).astype(jnp.int32)
     centre = grid.origin + grid.spacing * cell.astype(x.dtype)
-    reach = jnp.sqrt(jnp.sum((x - centre) ** 2, axis=-1))
-    return grid.values[cell[..., 0], cell[..., 1], cell[..., 2]] - reach
+    at_q = grid.values[cell[..., 0], cell[..., 1], cell[..., 2]] - jnp.sqrt(jnp.sum((q - centre) ** 2, axis=-1))
+    out = jnp.sum((x - q) ** 2, axis=-1)
+    return jnp.where(out > 0, jnp.sqrt(out + jnp.maximum(at_q, 0.0) ** 2), at_q)
 
 
 def grid_clearance(arcs: jnp.ndarray, frames: jnp.ndarray, spec: RobotSpec, grid: Grid) -> jnp.ndarray:

@@ -45,6 +45,21 @@ def test_the_grid_distance_is_a_lower_bound_of_the_distance_to_the_points():
     assert np.all(truth[outside] - bound[outside] <= REACH * 0.3 + float(grid.spacing) * np.sqrt(3.0) + 1e-5)
 
 
+def test_above_the_grid_the_bound_holds_and_is_at_least_the_height_above_it():
+    """A low slab of points and queries up to 10 m above the grid's box (where a robot's upper links
+    are): the bound holds, and is at least the height above the box (everything it measures lies in
+    the box), where the distance to a cell at the box's top less the height had made them look deep
+    inside the slab."""
+    points = np.concatenate([RNG.uniform([1.0, -1.0, 0.0], [3.0, 1.0, 0.5], (400, 3))]).astype(np.float32)
+    grid = fit(points, (2.0, 0.0, 1.5), gap=0.3)
+    top = float(grid.origin[2] + grid.spacing * (grid.values.shape[2] - 1))
+    queries = RNG.uniform([-4.0, -4.0, top], [8.0, 4.0, top + 10.0], (3000, 3)).astype(np.float32)
+    truth = np.min(np.linalg.norm(queries[:, None] - points[None], axis=-1), axis=1)
+    bound = np.asarray(grid_distance(grid, jnp.asarray(queries)))
+    assert np.all(bound <= truth + 1e-5)
+    assert np.all(bound >= queries[:, 2] - top - 1e-5)
+
+
 def test_a_free_cell_near_the_points_holds_the_exact_distance_to_the_points_and_filled_cells():
     """Free cells within EXACT_BAND of the points (of 6000 drawn): the nearer of the points (brute
     force) and the centres of the closed cells that hold no point (closed cells have negative values)."""
