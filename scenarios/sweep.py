@@ -101,8 +101,13 @@ JAX_CACHE = ".jax-cache"
 _SIGNALS = tuple(EXIT_STATUS)  # SIGINT, SIGTERM
 
 
+#: Worker processes that may die (a crash, a kill) in a local sweep before it stops: after each, a fresh
+#: pool runs the episodes the dead one left unfinished.
+WORKER_DEATHS = 3
+
+
 class SweepError(Exception):
-    """A sweep that cannot go on (a worker process died); one line."""
+    """A sweep that cannot go on (its workers kept dying); one line."""
 
 
 # ---------------------------------------------------------------- the grid
@@ -295,20 +300,28 @@ def _run_local(todo: list[EpisodeSettings], out: Path, formats, workers: int, re
 
     Workers are recycled by running rounds of ``workers * recycle`` episodes, each in a fresh pool:
     ``max_tasks_per_child`` deadlocks once a worker reaches its limit (CPython gh-115634, 3.11-3.14).
+    Where a worker dies (a crash, a kill), the episodes its round left unfinished run again in a
+    fresh pool, at most ``WORKER_DEATHS`` times (then SweepError).
     """
     out.mkdir(parents=True, exist_ok=True)
-    per_round = workers * recycle
+    per_round, queue, deaths = workers * recycle, list(todo), 0
     with _Stop() as stop:
-        for start in range(0, len(todo), per_round):
-            _run_round(todo[start:start + per_round], out, formats, workers, cache_dir, on_done, stop)
-            if stop.signum is not None:
-                break
+        while queue and stop.signum is None:
+            left = _run_round(queue[:per_round], out, formats, workers, cache_dir, on_done, stop)
+            queue = left + queue[per_round:]
+            if left:
+                deaths += 1
+                print(f"a worker process died (killed, or out of memory?); {len(left)} episodes run again",
+                      file=sys.stderr)
+            if deaths > WORKER_DEATHS:
+                raise SweepError(f"worker processes died {deaths} times (killed, or out of memory?)")
     return stop.signum
 
 
 def _run_round(todo: list[EpisodeSettings], out: Path, formats, workers: int, cache_dir: str | None,
-               on_done: OnDone, stop: _Stop) -> None:
-    """One pool of `workers` spawned processes for `todo`, shut down at the end or on `stop`."""
+               on_done: OnDone, stop: _Stop) -> list[EpisodeSettings]:
+    """One pool of `workers` spawned processes for `todo`, shut down at the end or on `stop`; the
+    episodes left unfinished where a worker died (none otherwise)."""
     from scenarios.episode import episode_name
 
     cores = max(1, _cpu_count() // workers)
@@ -316,9 +329,9 @@ def _run_round(todo: list[EpisodeSettings], out: Path, formats, workers: int, ca
     pool = cf.ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
                                   initializer=_init_local_worker, initargs=(cores, cache_dir))
     futures = {pool.submit(run_one, s, str(out / episode_name(s)), formats): s for s in todo}
-    pending = set(futures)
+    pending, left = set(futures), []
     try:
-        while pending and stop.signum is None:
+        while pending and stop.signum is None and not left:
             done, pending = cf.wait(pending, timeout=POLL_S, return_when=cf.FIRST_COMPLETED)
             if stop.signum is not None:  # episodes that ended with the signal are sorted out by the caller
                 break
@@ -327,9 +340,11 @@ def _run_round(todo: list[EpisodeSettings], out: Path, formats, workers: int, ca
                     seconds, error = future.result()
                 except RecordingInterrupted:  # a worker was signalled on its own: run it again later
                     seconds, error = math.nan, "interrupted by a signal"
-                except cf.process.BrokenProcessPool:
-                    raise SweepError("a worker process died (killed, or out of memory?)") from None
+                except cf.process.BrokenProcessPool:  # a worker died: every unfinished episode is left
+                    left.append(futures[future])
+                    continue
                 on_done(futures[future], seconds, error)
+        return left + [futures[f] for f in pending] if left else []
     finally:
         pool.shutdown(wait=False, cancel_futures=True)
         if pending:

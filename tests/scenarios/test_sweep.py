@@ -283,6 +283,31 @@ def test_a_sweep_killed_midway_finishes_every_episode_once_when_run_again(swept,
     assert {s: s.with_suffix(".mcap").stat().st_mtime_ns for s in finished} == finished
 
 
+def test_a_dead_worker_is_replaced_and_the_sweep_finishes(swept, tmp_path):
+    """SIGKILL to the worker alone (as a crash) once an episode is complete: a fresh pool runs what
+    it left, and the sweep ends with every episode complete, exit status 0."""
+    out = tmp_path / "runs"
+    shutil.copytree(swept[0] / JAX_CACHE, out / JAX_CACHE)
+    stems = [out / episode_name(tiny(e)) for e in range(3)]
+    proc = subprocess.Popen([sys.executable, "-m", "scenarios.sweep", *TINY, "--max-steps", str(STEPS), "--envs",
+                             "3", "--workers", "1", "--out", str(out)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    deadline = time.monotonic() + 120
+    while not any(read_complete(s, ("mcap",)) for s in stems) and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.02)
+    workers = [pid for pid in children(proc.pid) if b"spawn_main" in Path(f"/proc/{pid}/cmdline").read_bytes()]
+    assert len(workers) == 1
+    os.kill(workers[0], signal.SIGKILL)
+    try:
+        _, stderr = proc.communicate(timeout=240)
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 0, stderr
+    assert re.search(r"a worker process died .*; \d episodes run again", stderr)
+    assert all(read_complete(s, ("mcap",)) for s in stems)
+
+
 def test_recycled_workers_finish_the_sweep(swept, tmp_path):
     """``--recycle 2`` replaces the worker once in 3 episodes (a pool's max_tasks_per_child hung at the first)."""
     out = tmp_path / "runs"
