@@ -51,7 +51,7 @@ def timed(argv: list[str], cache: Path, extra: list[str], out: Path) -> tuple[fl
     of its first control step (None for a command that takes none); raises if it fails."""
     runner = "--max-steps" in argv
     outputs = ["--out", str(out), "--overwrite"] if runner else []
-    env = {**os.environ, "NCEDF_CACHE": str(cache)}
+    env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"} | {"NCEDF_CACHE": str(cache)}
     command = [sys.executable, "-c", PROBE, *argv[1:]] if argv[0] == "-m" else [sys.executable, *argv]
     start, wall = time.perf_counter(), time.time()
     done = subprocess.run([*command, *outputs, *extra], env=env, capture_output=True, text=True)

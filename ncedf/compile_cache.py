@@ -5,8 +5,9 @@ The cache lives under ``$NCEDF_CACHE/xla`` (``~/.cache/ncedf/xla`` by default, b
 in one folder per JAX version, device platform and CPU (its model and feature flags: compiled CPU
 code may use instructions that another CPU lacks, and a home folder may be shared between
 machines). JAX keys every program by its computation and compile options and writes each to its
-own file, so concurrent processes share one folder. ``NCEDF_COMPILE_CACHE=0`` in the environment,
-or a command's ``--no-cache``, turns it off.
+own file, so concurrent processes share one folder. A folder named by JAX's own
+``JAX_COMPILATION_CACHE_DIR`` is used instead (the test session shares one so). ``NCEDF_COMPILE_CACHE=0``
+in the environment, or a command's ``--no-cache``, turns it off.
 """
 
 from __future__ import annotations
@@ -38,7 +39,10 @@ def cpu_identity() -> str:
 
 
 def cache_folder() -> Path:
-    """This machine's folder of the cache: ``$NCEDF_CACHE/xla/<jax version>-<platform>-<cpu hash>``."""
+    """This machine's folder of the cache: ``$JAX_COMPILATION_CACHE_DIR`` where set, else
+    ``$NCEDF_CACHE/xla/<jax version>-<platform>-<cpu hash>``."""
+    if os.environ.get("JAX_COMPILATION_CACHE_DIR"):
+        return Path(os.environ["JAX_COMPILATION_CACHE_DIR"])
     cpu = hashlib.sha256(cpu_identity().encode()).hexdigest()[:12]
     return cache_dir() / "xla" / f"jax{jax.__version__}-{jax.default_backend()}-{cpu}"
 

@@ -24,9 +24,12 @@ def restored_config():
 
 def test_the_folder_is_under_the_projects_cache_and_names_jax_and_the_platform(tmp_path, monkeypatch):
     monkeypatch.setenv("NCEDF_CACHE", str(tmp_path))
+    monkeypatch.delenv("JAX_COMPILATION_CACHE_DIR", raising=False)
     folder = cache_folder()
     assert folder.parent == tmp_path / "xla"
     assert folder.name.startswith(f"jax{jax.__version__}-{jax.default_backend()}-")
+    monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", str(tmp_path / "shared"))  # JAX's own variable wins
+    assert cache_folder() == tmp_path / "shared"
 
 
 @pytest.mark.parametrize("value", ["0", "off", "False"])
@@ -41,6 +44,7 @@ def test_the_environment_or_the_flag_turns_it_off(tmp_path, monkeypatch, restore
 
 def test_a_compiled_program_is_written_and_read_back(tmp_path, monkeypatch, restored_config):
     monkeypatch.setenv("NCEDF_CACHE", str(tmp_path))
+    monkeypatch.delenv("JAX_COMPILATION_CACHE_DIR", raising=False)
     monkeypatch.delenv(ENV_SWITCH, raising=False)
     folder = enable_compile_cache()
     assert folder == cache_folder() and jax.config.jax_compilation_cache_dir == str(folder)
