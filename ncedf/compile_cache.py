@@ -52,6 +52,12 @@ def enabled() -> bool:
     return os.environ.get(ENV_SWITCH, "1").strip().lower() not in _OFF
 
 
+def add_cache_option(parser) -> None:
+    """A command's ``--no-cache`` flag (``args.no_cache``), for ``enable_compile_cache(not args.no_cache)``."""
+    parser.add_argument("--no-cache", action="store_true",
+                        help="compile afresh, without the persistent compilation cache (ncedf.compile_cache)")
+
+
 def enable_compile_cache(on: bool = True) -> Path | None:
     """Point JAX's persistent compilation cache at :func:`cache_folder` (every program, however quick
     to compile); nothing where ``on`` is False or the environment turns it off. JAX decides whether

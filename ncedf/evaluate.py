@@ -18,7 +18,7 @@ import time
 import jax
 import numpy as np
 
-from ncedf.compile_cache import enable_compile_cache
+from ncedf.compile_cache import add_cache_option, enable_compile_cache
 from ncedf.data import ValidationConfig, load_dataset
 from ncedf.metrics import NEAR_FIELD
 from ncedf.model import ModelError, load_model
@@ -82,7 +82,7 @@ def main(argv=None) -> int:
     p.add_argument("--configs", type=int, default=100, help="validation configurations (default 100)")
     p.add_argument("--points", type=int, default=4096, help="random points per configuration (default 4096)")
     p.add_argument("--seed", type=int, default=12345, help="validation seed")
-    p.add_argument("--no-cache", action="store_true", help="compile afresh, without the persistent compilation cache")
+    add_cache_option(p)
     args = p.parse_args(argv)
     enable_compile_cache(not args.no_cache)
     try:
@@ -102,8 +102,8 @@ def main(argv=None) -> int:
             for link in model.links():
                 report_link(link, val_cfg, args)
             links = timed_links(model)
-            print(f"inference: {inference_ms(model, links):.3f} ms for one {links}-link configuration against 500 points "
-                  f"(median, {jax.devices()[0].platform})")
+            print(f"inference: {inference_ms(model, links):.3f} ms for one {links}-link configuration against "
+                  f"500 points (median, {jax.devices()[0].platform})")
     except Stopped as stop:
         print(f"stopped by {stop}: nothing written", file=sys.stderr)
         return EXIT_STATUS[stop.signum]

@@ -33,7 +33,7 @@ import numpy as np
 import optax
 from tqdm import tqdm
 
-from ncedf.compile_cache import enable_compile_cache
+from ncedf.compile_cache import add_cache_option, enable_compile_cache
 from ncedf.data import BOX_MAX, BOX_MIN, DatasetConfig, LinkDataset, ValidationConfig, load_dataset
 from ncedf.metrics import NEAR_FIELD, distance_metrics
 from ncedf.model import (ENCODINGS, MLP, NCEDF, OUTPUTS, ModelConfig, encode, init_params, model_spec, save_model,
@@ -225,7 +225,8 @@ def train(
         raise ValueError(f"the training set has {n} samples, fewer than batch_size {cfg.batch_size}")
     optimizer = make_optimizer(cfg, cfg.epochs * (n // cfg.batch_size))
     state = initial_state(model_cfg, cfg, optimizer)
-    state = (resume(state) if resume is not None else None) or state
+    if resume is not None:
+        state = resume(state) or state
     epoch = make_epoch(model_cfg, cfg, optimizer, n)
     bar = tqdm(range(state.epoch, cfg.epochs), desc="train", unit="epoch", disable=not progress, file=sys.stderr,
                initial=state.epoch, total=cfg.epochs)
@@ -293,7 +294,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--out", required=True, help="output stem: writes OUT.msgpack and OUT.json")
     p.add_argument("--record", metavar="STEM", help="also record the run (per-epoch /metrics) to STEM.rrd and STEM.mcap")
     p.add_argument("--overwrite", action="store_true", help="overwrite existing weights and recording")
-    p.add_argument("--no-cache", action="store_true", help="compile afresh, without the persistent compilation cache")
+    add_cache_option(p)
     return p.parse_args(argv)
 
 

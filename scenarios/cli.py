@@ -22,7 +22,7 @@ import warnings
 from pathlib import Path
 from typing import Callable
 
-from ncedf.compile_cache import enable_compile_cache
+from ncedf.compile_cache import add_cache_option, enable_compile_cache
 from ncedf.presets import DEFAULT, PRESETS, SUMMARIES
 from recorder import RecorderError
 from recorder.cli import EXIT_STATUS, OneLineParser, Stopped, stop_on_signals
@@ -63,8 +63,7 @@ def make_parser(scenario: str, description: str, *, links: int = 4, max_steps: i
     p.add_argument("--mesh-every", type=int, default=1, help="record the robot mesh every N steps (default 1)")
     p.add_argument("--overwrite", action="store_true", help="replace existing recordings")
     p.add_argument("--viewer", action="store_true", help="also stream live to a Rerun viewer")
-    p.add_argument("--no-cache", action="store_true",
-                   help="compile afresh, without the persistent compilation cache (ncedf.compile_cache)")
+    add_cache_option(p)
     return p
 
 

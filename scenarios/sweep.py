@@ -295,7 +295,7 @@ def _cpu_count() -> int:
 
 
 def _run_local(todo: list[EpisodeSettings], out: Path, formats, workers: int, recycle: int,
-               cache_dir: str | None, on_done: OnDone) -> int | None:
+               cache_dir: str | None, on_done: OnDone, log: Callable[[str], None]) -> int | None:
     """Run `todo` in `workers` spawned processes; returns the signal that stopped it, or None.
 
     Workers are recycled by running rounds of ``workers * recycle`` episodes, each in a fresh pool:
@@ -311,8 +311,7 @@ def _run_local(todo: list[EpisodeSettings], out: Path, formats, workers: int, re
             queue = left + queue[per_round:]
             if left:
                 deaths += 1
-                print(f"a worker process died (killed, or out of memory?); {len(left)} episodes run again",
-                      file=sys.stderr)
+                log(f"a worker process died (killed, or out of memory?); {len(left)} episodes run again")
             if deaths > WORKER_DEATHS:
                 raise SweepError(f"worker processes died {deaths} times (killed, or out of memory?)")
     return stop.signum
@@ -553,7 +552,7 @@ def _run_todo(report: SweepReport, todo: dict, out: Path, formats: tuple, worker
         try:
             if executor == "local":
                 cache = str(out / JAX_CACHE if jax_cache is None else Path(jax_cache).resolve())
-                report.signum = _run_local(list(todo), out, formats, workers, recycle, cache, on_done)
+                report.signum = _run_local(list(todo), out, formats, workers, recycle, cache, on_done, log)
             else:
                 cache = None if jax_cache is None else str(Path(jax_cache).resolve())
                 report.signum = _run_ray(list(todo), out, formats, address, recycle, cache, on_done)
