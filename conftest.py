@@ -11,7 +11,8 @@ and the commands the tests start as subprocesses inherit these.
 
 The session's processes (the two workers and the commands they start) also share a persistent
 JAX compilation cache in a temporary folder, removed at the end: a program one of them compiled
-is loaded, not compiled again, by the others. A loaded program is the compiled one, so results are unchanged. A cache folder
+is loaded, not compiled again, by the others. A loaded program is the compiled one, so results
+are unchanged. A cache folder
 already in ``JAX_COMPILATION_CACHE_DIR`` is used as it is and kept.
 """
 

@@ -262,11 +262,13 @@ def positive_arg(name: str):
 
 def main(argv=None) -> int:
     listed = textwrap.fill(", ".join(VARIANTS), width=98, initial_indent="  ", subsequent_indent="  ")
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], epilog=f"{__doc__}\nVARIANTS:\n{listed}\nworlds: {', '.join(WORLDS)}\n",
+    epilog = f"{__doc__}\nVARIANTS:\n{listed}\nworlds: {', '.join(WORLDS)}\n"
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], epilog=epilog,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--variants", default="release,ours,paper", metavar="LIST",
                    type=parse_variants,
-                   help="VARIANTS below or PRESET:STAGE.FIELD=VALUE[:...], comma-separated (default release,ours,paper)")
+                   help="VARIANTS below or PRESET:STAGE.FIELD=VALUE[:...], comma-separated "
+                        "(default release,ours,paper)")
     p.add_argument("--scenarios", default="cluttered,spheres", metavar="LIST",
                    type=lambda t: parse_list(t, str, "scenario", ("cluttered", "spheres") + WORLDS),
                    help="comma-separated: cluttered, spheres or worlds (below); default cluttered,spheres")

@@ -291,7 +291,8 @@ def _summary_record(path: Path) -> dict[str, Any] | None:
 
 
 def load_summaries(folder: str | Path, kind: str = "episodes") -> pd.DataFrame:
-    """All runs under `folder` (of `kind`, as `load_runs`) -> one row per run: the columns of `load_runs`' runs table, then
+    """All runs under `folder` (of `kind`, as `load_runs`) -> one row per run: the columns of
+    `load_runs`' runs table, then
     `summary.ROWS` (the number of /metrics rows) and, per metric column, `<metric>.<stat>` for each of
     `summary.STATS` (count of finite values, mean, population std, min, max, last finite value and its step).
 

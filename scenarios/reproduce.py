@@ -302,8 +302,9 @@ def run_networks(table: str, out: Path, budget: Budget, seed: int, command: str)
 
     where = folder(out, table, budget)
     todo = [n for n in networks(table, budget) if read_complete(where / n.name, ("mcap",)) is None]
-    data_cfg = DatasetConfig(n_configs=budget.networks.configs, grid=budget.networks.grid, n_surface=budget.networks.surface, seed=seed)
-    val_cfg = ValidationConfig(n_configs=budget.networks.val_configs, n_points=budget.networks.val_points, n_surface=budget.networks.val_surface)
+    nets = budget.networks
+    data_cfg = DatasetConfig(n_configs=nets.configs, grid=nets.grid, n_surface=nets.surface, seed=seed)
+    val_cfg = ValidationConfig(n_configs=nets.val_configs, n_points=nets.val_points, n_surface=nets.val_surface)
     write_manifest(where, table, budget, command, {"dataset": dataclasses.asdict(data_cfg),
                                                    "validation": dataclasses.asdict(val_cfg), "seed": seed})
     print(f"{table}: {len(networks(table, budget))} networks in {where}, {len(todo)} to train", file=sys.stderr)
