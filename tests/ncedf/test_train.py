@@ -1,5 +1,6 @@
 """Training: loss terms in closed form, clipping before the update, a short run learns."""
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
@@ -8,7 +9,7 @@ import pytest
 from ncedf.data import DatasetConfig, ValidationConfig, load_dataset
 from ncedf.model import ModelConfig
 from ncedf.robot import RobotSpec
-from ncedf.train import TrainConfig, loss_terms, make_optimizer, main, train, training_arrays
+from ncedf.train import TrainConfig, epoch_order, loss_terms, make_optimizer, main, train, training_arrays
 
 SPEC = RobotSpec(1)
 
@@ -87,6 +88,16 @@ def test_signed_targets_are_negative_inside():
     np.testing.assert_allclose(y[: 3 * k], np.where(data.inside, -data.distances, data.distances).ravel())
     np.testing.assert_array_equal(y[3 * k:], 0.0)
     assert data.inside.any()
+
+
+def test_an_epochs_order_draws_each_sample_at_most_once_and_the_key_decides_it():
+    order = epoch_order(jax.random.PRNGKey(3), 1000, 64)
+    assert order.shape == (15, 64) and order.dtype == np.int32
+    assert len(np.unique(order)) == order.size and order.min() >= 0 and order.max() < 1000
+    np.testing.assert_array_equal(order, epoch_order(jax.random.PRNGKey(3), 1000, 64))
+    assert not np.array_equal(order, epoch_order(jax.random.PRNGKey(4), 1000, 64))
+    full = epoch_order(jax.random.PRNGKey(5), 1024, 64)
+    np.testing.assert_array_equal(np.sort(full.ravel()), np.arange(1024))
 
 
 def test_short_training_run_reduces_validation_error():
