@@ -39,70 +39,15 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-import jax
-import numpy as np
-
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from arguments import positive  # noqa: E402
-from ncedf.mppi import MPPIConfig  # noqa: E402
 from ncedf.robot import RobotSpec  # noqa: E402
 from recorder.cli import OneLineParser, exit_with  # noqa: E402
 from scenarios.episode import goal_text  # noqa: E402
-from scenarios.oracle import OracleConfig, closest_approach  # noqa: E402
+from scenarios.floor import BASE_DT, STEP_DT, Reach, first_base_hit, hit_step  # noqa: E402
+from scenarios.oracle import OracleConfig  # noqa: E402
 from scenarios.spheres import MAX_STEPS, TOLERANCE, make_environment  # noqa: E402
-from scenarios.world import World  # noqa: E402
-
-#: Control step of the scenarios, s (every preset keeps the default).
-STEP_DT = MPPIConfig.dt
-
-
-def disk_gap(centres: np.ndarray, radii: np.ndarray, disk_radius: float) -> np.ndarray:
-    """Distance from each sphere to the base disk (negative = overlap), m.
-
-    Args:
-      centres: (..., S, 3) m.  radii: (S,) m.
-    """
-    rho = np.linalg.norm(centres[..., :2], axis=-1)
-    return np.hypot(np.maximum(rho - disk_radius, 0.0), centres[..., 2]) - radii
-
-
-def first_base_hit(world: World, spec: RobotSpec, horizon: float, dt: float) -> float | None:
-    """First sampled time in [0, horizon] at which a sphere overlaps the base disk, s (None if never)."""
-    times = np.arange(0.0, horizon + 0.5 * dt, dt)
-    centres = world.sphere_track(times)  # (T, S, 3)
-    radii = np.array([s.radius for s in world.spheres])
-    hit = np.any(disk_gap(centres, radii, spec.radius) < 0.0, axis=1)
-    return float(times[np.argmax(hit)]) if hit.any() else None
-
-
-class Reach:
-    """Whether the goal can be reached within a number of steps, per goal, from as few searches as the
-    nesting of the reachable sets allows (reachable within k implies within every k' > k)."""
-
-    def __init__(self, spec: RobotSpec, config: OracleConfig):
-        self.spec, self.config = spec, config
-        self.reached: dict[tuple, int] = {}  # goal -> smallest steps found to reach it
-        self.missed: dict[tuple, tuple[int, float]] = {}  # goal -> (largest steps found short, closest, m)
-
-    def within(self, goal, steps: int) -> tuple[bool, int, float]:
-        """(reachable within ``steps`` steps, the steps searched, the closest approach found then, m).
-
-        A search for more steps that fell short answers for fewer (its closest approach is a lower bound
-        for them); one that reached answers for more (nan)."""
-        key = tuple(float(g) for g in goal)
-        if steps < 1:
-            return False, 0, np.nan
-        if steps <= self.missed.get(key, (0, np.nan))[0]:
-            return False, *self.missed[key]
-        if steps >= self.reached.get(key, np.inf):
-            return True, self.reached[key], np.nan
-        closest = closest_approach(self.spec, goal, steps, STEP_DT, jax.random.PRNGKey(steps), self.config)
-        if closest <= TOLERANCE:  # searched only below a known reach, so this is the smallest yet
-            self.reached[key] = steps
-        else:
-            self.missed[key] = (steps, closest)
-        return closest <= TOLERANCE, steps, closest
 
 
 def main(argv=None) -> int:
@@ -110,7 +55,7 @@ def main(argv=None) -> int:
     p.add_argument("--envs", type=positive, default=200, help="environments 0..N-1 (default 200)")
     p.add_argument("--goal", type=goal_text, default="fixed", metavar="GOAL",
                    help="fixed, random or X,Y,Z in m (default fixed)")
-    p.add_argument("--dt", type=float, default=0.005, help="time sampling, s (default 0.005)")
+    p.add_argument("--dt", type=float, default=BASE_DT, help=f"time sampling, s (default {BASE_DT})")
     p.add_argument("--runs", help="folder of sphere recordings to compare with")
     p.add_argument("--starts", type=positive, default=64, help="starts of each closest-approach search (default 64)")
     args = p.parse_args(argv)
@@ -127,8 +72,7 @@ def main(argv=None) -> int:
     print("  " + ", ".join(f"env {e} at {t:.3f} s (step {t / STEP_DT:.1f})" for e, t in hits.items()))
     reach, certain = Reach(spec, OracleConfig(starts=args.starts)), []
     for env, t in hits.items():
-        # the sampled time is at or after the overlap's start, so this deadline is never too early
-        deadline = int(np.ceil(t / STEP_DT - 1e-9)) - 1
+        deadline = hit_step(t) - 1
         reachable, searched, closest = reach.within(goals[env], deadline)
         if not reachable:
             certain.append(env)

@@ -33,13 +33,10 @@ from ncedf.mppi import MPPIConfig  # noqa: E402
 from ncedf.robot import RobotSpec  # noqa: E402
 from recorder.cli import EXIT_STATUS, OneLineParser, Stopped, exit_with, stop_on_signals  # noqa: E402
 from scenarios.episode import goal_text  # noqa: E402
+from scenarios.floor import HORIZONS, LINKS  # noqa: E402
 from scenarios.oracle import OracleConfig, plan_reach  # noqa: E402
 from scenarios.spheres import TOLERANCE, make_environment  # noqa: E402
 
-#: Horizons tried by default, steps (the fastest reach of the fixed goal found is 8).
-HORIZONS = (8, 10, 12, 15, 20, 25, 30, 40)
-#: Robot of the scenario.
-LINKS = 4
 
 
 def horizon_list(text: str) -> tuple[int, ...]:

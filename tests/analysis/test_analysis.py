@@ -27,8 +27,10 @@ from ncedf.data import DatasetConfig, ValidationConfig, load_dataset
 from ncedf.model import load_model
 from ncedf.robot import RobotSpec
 from ncedf.train import evaluate_model
-from scenarios import reproduce
+from scenarios import floor, reproduce
 from scenarios.episode import EpisodeSettings, episode_name, run_episode
+from scenarios.oracle import OracleResult
+from scenarios.spheres import make_environment
 
 ROOT = Path(__file__).resolve().parents[2]
 Z = 1.959963984540054
@@ -105,7 +107,30 @@ def script(name: str, *args) -> subprocess.CompletedProcess:
 
 
 @pytest.fixture(scope="module")
-def tables(folder, tmp_path_factory):
+def verdicts(folder):
+    """Floor verdicts planted for the sphere environments no episode solved: a found motion where the
+    episode collided, else in turn certain and none found: {(goal, env): "found" | "certain" | "none"}."""
+    runs, results, _ = folder
+    open_envs = floor.open_environments(runs)
+    outcome = {(s.goal, s.env_seed): r.outcome for s, r in results.values() if s.scenario == "spheres"}
+    assert open_envs == sorted(k for k, o in outcome.items() if o != "success") and open_envs
+    assert "collision" in outcome.values(), "the fixture should give a collision to judge"
+    spec, planted = RobotSpec(4), {}
+    for i, (goal, env) in enumerate(open_envs):
+        world, target, _ = make_environment(env, spec, goal)
+        arcs = np.repeat(np.asarray(spec.straight_state(), np.float64)[None], 3, axis=0)
+        kind = "found" if outcome[(goal, env)] == "collision" else ("certain", "none")[i % 2]
+        verdict = {"found": floor.Verdict(None, False, OracleResult(2, 8, arcs, 0.4)),
+                   "certain": floor.Verdict(3, True, None),
+                   "none": floor.Verdict(None, False, OracleResult(None, None, None, math.nan))}[kind]
+        floor.record_verdict(floor.verdict_stem(runs / floor.SCENARIO, goal, env), goal, env, world, target, spec,
+                             verdict)
+        planted[(goal, env)] = kind
+    return planted
+
+
+@pytest.fixture(scope="module")
+def tables(folder, verdicts, tmp_path_factory):
     runs, _, _ = folder
     out = tmp_path_factory.mktemp("tables")
     done = script("make_tables.py", runs, "--out", out)
@@ -131,7 +156,7 @@ def pooled(results) -> tuple[float, float]:
     return mean / 1e3, math.sqrt(second - mean**2) / 1e3
 
 
-def test_table3_rates_and_times_match_the_episodes(folder, tables):
+def test_table3_rates_and_times_match_the_episodes(folder, tables, verdicts):
     _, results, _ = folder
     out, _ = tables
     df = pd.read_csv(out / "table3.csv")
@@ -153,6 +178,14 @@ def test_table3_rates_and_times_match_the_episodes(folder, tables):
     assert row["mppi_step_s_std"] == pytest.approx(std, rel=1e-3)
     assert row["mppi_steps"] == sum(r.steps for r in ours)
     assert row["paper_success"] == 0.872 and row["controller"] == "paper" and row["samples"] == 16
+    planted = {env: kind for (goal, env), kind in verdicts.items() if goal == "fixed"}
+    collided = [s.env_seed for s, r in results.values() if s.scenario == "spheres" and s.goal == "fixed"
+                and r.outcome == "collision"]
+    assert row["n_certain"] == sum(k == "certain" for k in planted.values())
+    assert row["n_unsolved"] == sum(k in ("certain", "none") for k in planted.values())
+    assert row["n_avoidable"] == sum(planted.get(env) == "found" for env in collided) == len(collided)
+    low, high = wilson_by_roots(int(row["n_unsolved"]), SPHERE_ENVS)
+    assert row["unsolved_low"] == pytest.approx(low, abs=1e-5) and row["unsolved_high"] == pytest.approx(high, abs=1e-5)
     other = df.set_index("goal").loc[SPHERE_GOAL]
     at_goal = [r for s, r in results.values() if s.scenario == "spheres" and s.goal == SPHERE_GOAL]
     assert other["episodes"] == 1 and other[f"n_{at_goal[0].outcome}"] == 1
