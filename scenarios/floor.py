@@ -197,19 +197,20 @@ def parse_args(argv=None):
     return args
 
 
-def main(argv=None) -> int:
+def run_floor(folder: Path, starts: int = OracleConfig.starts) -> int:
+    """Record the verdicts of ``folder``'s open environments in ``folder/floor`` (resumes); the exit
+    status: 0 done, 130 / 143 stopped by SIGINT / SIGTERM (one line says what was kept)."""
     from tqdm import tqdm
 
     from scenarios.sweep import read_complete
 
-    args = parse_args(argv)
-    todo = open_environments(Path(args.runs))
-    out, spec, config = Path(args.runs) / SCENARIO, RobotSpec(LINKS), OracleConfig(starts=args.starts)
+    todo = open_environments(folder)
+    out, spec, config = folder / SCENARIO, RobotSpec(LINKS), OracleConfig(starts=starts)
     reach, start, done = Reach(spec, OracleConfig(starts=APPROACH_STARTS)), time.perf_counter(), 0
-    print(f"{len(todo)} environments of {args.runs} where no recorded episode reached the goal", file=sys.stderr)
+    print(f"floor: {len(todo)} environments of {folder} where no recorded episode reached the goal", file=sys.stderr)
     try:
         with stop_on_signals():
-            for goal_kind, env in tqdm(todo, desc="verdicts", unit="env", file=sys.stderr, dynamic_ncols=True):
+            for goal_kind, env in tqdm(todo, desc="floor", unit="env", file=sys.stderr, dynamic_ncols=True):
                 stem = verdict_stem(out, goal_kind, env)
                 if read_complete(stem, ("mcap",)) is None:
                     world, goal, _ = make_environment(env, spec, goal_kind)
@@ -223,9 +224,13 @@ def main(argv=None) -> int:
         print(f"interrupted: {done} of {len(todo)} verdicts recorded in {out}; the same command finishes "
               "the rest", file=sys.stderr)
         return EXIT_STATUS[signum]
-    print(f"{done} verdicts in {out} ({time.perf_counter() - start:.0f} s); Table III reads them: "
-          f"python -m analysis.make_tables {args.runs}", file=sys.stderr)
+    print(f"floor: {done} verdicts in {out} ({time.perf_counter() - start:.0f} s)", file=sys.stderr)
     return 0
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    return run_floor(Path(args.runs), args.starts)
 
 
 if __name__ == "__main__":

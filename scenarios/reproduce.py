@@ -19,7 +19,8 @@ package versions (quick results are marked there and in every table).
 * Table II: 4 x 16 with and without the over-estimation loss, recorded the same way.
 * Table III: the dynamic-sphere sweep, shapes ncedf, spheres, pointcloud:1000,
   pointcloud:5000 x every controller of ``ncedf.presets.PRESETS``
-  (``--envs`` environments; ``--envs-5000`` for pointcloud:5000).
+  (``--envs`` environments; ``--envs-5000`` for pointcloud:5000), then the floor's verdict
+  (``scenarios.floor``) on every environment no episode solved.
 * Table IV: cluttered, 4 / 5 / 7 links x ``--seeds`` seeds x every controller.
 * worlds (beyond the paper's): the charging port and the confined-space runners (window, cabinet,
   pipe, slot, pillars), 4 / 5 / 7 links x ``--seeds`` environment seeds x ours and paper (the
@@ -354,6 +355,10 @@ def run_episodes(table: str, out: Path, budget: Budget, seed: int, command: str)
     if report.signum is not None:
         return report.exit_status
     print(summary_table(report), file=sys.stderr)
+    if table == "table3" and report.exit_status == 0:
+        from scenarios.floor import run_floor
+
+        return run_floor(where)
     return report.exit_status
 
 

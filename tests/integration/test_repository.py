@@ -16,8 +16,8 @@ TEXT = {".py", ".md", ".toml", ".txt", ".cfg", ".json", ".yml", ".yaml", ".sh", 
 SKIPPED = {".git", ".venv", "__pycache__", ".pytest_cache", "ncedf.egg-info"}
 MODULES = ["scenarios.cluttered", "scenarios.spheres", "scenarios.charging", "scenarios.window", "scenarios.cabinet",
            "scenarios.pipe", "scenarios.slot", "scenarios.pillars", "scenarios.custom", "scenarios.sweep",
-           "scenarios.reproduce", "ncedf.train", "ncedf.evaluate", "analysis.make_tables", "analysis.make_figures",
-           "recorder.inspect", "recorder.synthetic"]
+           "scenarios.floor", "scenarios.reproduce", "ncedf.train", "ncedf.evaluate", "analysis.make_tables",
+           "analysis.make_figures", "recorder.inspect", "recorder.synthetic"]
 SCRIPTS = sorted(p for p in [*(ROOT / "bench").glob("*.py"), ROOT / "analysis" / "bench_read.py"]
                  if '__name__ == "__main__"' in p.read_text())
 
