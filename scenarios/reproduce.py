@@ -29,7 +29,8 @@ package versions (quick results are marked there and in every table).
   representation, against link count (4 / 5 / 7 at 500 points) and obstacle points (100 ... 5000 at
   4 links), ``--timing-repeats`` timed steps each, recorded as ``solver_ms`` rows.
 
-Tables III and IV and the worlds run through ``scenarios.sweep.run_sweep``. Everything resumes:
+Tables III and IV and the worlds run through ``scenarios.sweep.run_sweep``, in local processes or
+on Ray (``--executor ray [--address ADDR]``, the optional extra ``ncedf[cluster]``). Everything resumes:
 a network or episode whose recording is closed with a final outcome is skipped, and a network
 stopped midway goes on from its last finished epoch (its training state is saved after each), so
 the same command finishes an interrupted experiment.
@@ -47,6 +48,7 @@ next run goes on from its last epoch), complete recordings are kept; exit 130 / 
 from __future__ import annotations
 
 import dataclasses
+import importlib.util
 import json
 import os
 import signal
@@ -342,8 +344,10 @@ def sweep_episodes(table: str, budget: Budget):
     return sweep_settings(["cluttered"], list(TABLE4_LINKS), ["ncedf"], controllers, 1, budget.episodes.seeds, **common)
 
 
-def run_episodes(table: str, out: Path, budget: Budget, seed: int, command: str) -> int:
-    """Run the sweep of ``table`` (resumes); the sweep's exit status."""
+def run_episodes(table: str, out: Path, budget: Budget, seed: int, command: str, executor: str = "local",
+                 address: str | None = None) -> int:
+    """Run the sweep of ``table`` (resumes) on ``executor`` (``local`` or ``ray``, at ``address``); the
+    sweep's exit status."""
     from ncedf.presets import PRESETS
     from scenarios.sweep import run_sweep, summary_table
 
@@ -351,7 +355,7 @@ def run_episodes(table: str, out: Path, budget: Budget, seed: int, command: str)
     where = folder(out, table, budget)
     episodes = sweep_episodes(table, budget)
     write_manifest(where, table, budget, command, {"controllers": list(controllers), "episodes": len(episodes)})
-    report = run_sweep(episodes, where, workers=budget.episodes.workers)
+    report = run_sweep(episodes, where, executor=executor, workers=budget.episodes.workers, address=address)
     if report.signum is not None:
         return report.exit_status
     print(summary_table(report), file=sys.stderr)
@@ -400,12 +404,13 @@ def run_timing(out: Path, budget: Budget, seed: int, command: str) -> int:
     return 0
 
 
-def run_table(table: str, out: Path, budget: Budget, seed: int, command: str) -> int:
+def run_table(table: str, out: Path, budget: Budget, seed: int, command: str, executor: str = "local",
+              address: str | None = None) -> int:
     if table in ("table1", "table2"):
         return run_networks(table, out, budget, seed, command)
     if table == "timing":
         return run_timing(out, budget, seed, command)
-    return run_episodes(table, out, budget, seed, command)
+    return run_episodes(table, out, budget, seed, command, executor, address)
 
 
 # ---------------------------------------------------------------- CLI
@@ -427,6 +432,9 @@ def parse_args(argv=None):
                    help=f"timed steps per network or timing case (default {TimingBudget.repeats}, "
                         f"quick {QUICK.timing.repeats})")
     p.add_argument("--workers", type=int, help="sweep worker processes (default: one per core)")
+    p.add_argument("--executor", choices=("local", "ray"), default="local",
+                   help="where the sweeps run: local processes, or Ray (pip install 'ncedf[cluster]')")
+    p.add_argument("--address", help="Ray cluster address (default: RAY_ADDRESS, or a local Ray)")
     p.add_argument("--seed", type=int, default=0, help="training seed (default 0)")
     return p.parse_args(argv)
 
@@ -466,6 +474,9 @@ def main(argv=None) -> int:
     if not existing.is_dir() or not os.access(existing, os.W_OK | os.X_OK):
         print(f"error: cannot write recordings to {out}: {existing} is not a writable folder", file=sys.stderr)
         return 2
+    if args.executor == "ray" and importlib.util.find_spec("ray") is None:
+        print("error: --executor ray needs Ray: pip install 'ncedf[cluster]'", file=sys.stderr)
+        return 2
     command = "python -m scenarios.reproduce " + " ".join(sys.argv[1:] if argv is None else argv)
 
     status = 0
@@ -473,7 +484,7 @@ def main(argv=None) -> int:
         with stop_on_signals():
             for table in TABLES if args.table == "all" else (args.table,):
                 start = time.perf_counter()
-                code = run_table(table, out, budget, args.seed, command)
+                code = run_table(table, out, budget, args.seed, command, args.executor, args.address)
                 print(f"{table}: done in {time.perf_counter() - start:.0f} s (exit {code})", file=sys.stderr)
                 if code in EXIT_STATUS.values():
                     print(f"interrupted: complete recordings under {out} are kept; run the same command to finish",
