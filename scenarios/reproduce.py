@@ -433,7 +433,7 @@ def parse_args(argv=None):
                         f"quick {QUICK.timing.repeats})")
     p.add_argument("--workers", type=int, help="sweep worker processes (default: one per core)")
     p.add_argument("--executor", choices=("local", "ray"), default="local",
-                   help="where the sweeps run: local processes, or Ray (pip install 'ncedf[cluster]')")
+                   help="run the sweeps in local processes or on Ray (default local)")
     p.add_argument("--address", help="Ray cluster address (default: RAY_ADDRESS, or a local Ray)")
     p.add_argument("--seed", type=int, default=0, help="training seed (default 0)")
     return p.parse_args(argv)
