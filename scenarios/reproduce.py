@@ -432,8 +432,8 @@ def parse_args(argv=None):
                    help=f"timed steps per network or timing case (default {TimingBudget.repeats}, "
                         f"quick {QUICK.timing.repeats})")
     p.add_argument("--workers", type=int, help="sweep worker processes (default: one per core)")
-    p.add_argument("--executor", choices=("local", "ray"), default="local",
-                   help="run the sweeps in local processes or on Ray (default local)")
+    p.add_argument("--executor", choices=("local", "ray"), default="local", metavar="E",
+                   help="run the sweeps in local processes or on Ray: local, ray (default local)")
     p.add_argument("--address", help="Ray cluster address (default: RAY_ADDRESS, or a local Ray)")
     p.add_argument("--seed", type=int, default=0, help="training seed (default 0)")
     return p.parse_args(argv)
