@@ -19,34 +19,24 @@ import time
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optax
 
 from ncedf.data import DatasetConfig, ValidationConfig, load_dataset
 from ncedf.model import ENCODINGS, NCEDF, ModelConfig, model_spec
 from ncedf.robot import RobotSpec
-from ncedf.train import (TrainConfig, evaluate_model, initial_state, loss_terms, make_epoch, make_optimizer,
+from ncedf.train import (TrainConfig, evaluate_model, initial_state, make_epoch, make_optimizer, make_step,
                          training_arrays)
 
 
 def former_epoch(model_cfg: ModelConfig, cfg: TrainConfig, optimizer, n_samples: int):
     """The reference: the permutation drawn by XLA and each minibatch gathered inside the scan."""
     n_batches = n_samples // cfg.batch_size
-
-    def total(params, xb, yb):
-        t = loss_terms(params, model_cfg, xb, yb, cfg.near_weight)
-        return t["distance"] + cfg.lambda_eikonal * t["eikonal"] + cfg.lambda_over * t["over"], t
+    step = make_step(model_cfg, cfg, optimizer)
 
     @jax.jit
     def epoch(params, opt_state, key, x, y):
         order = jax.random.permutation(key, n_samples)[: n_batches * cfg.batch_size]
-
-        def step(carry, idx):
-            params, opt_state = carry
-            (_, terms), grads = jax.value_and_grad(total, has_aux=True)(params, x[idx], y[idx])
-            updates, opt_state = optimizer.update(grads, opt_state, params)
-            return (optax.apply_updates(params, updates), opt_state), terms
-
-        (params, opt_state), terms = jax.lax.scan(step, (params, opt_state), order.reshape(n_batches, -1))
+        (params, opt_state), terms = jax.lax.scan(lambda carry, idx: step(carry, (x[idx], y[idx])),
+                                                  (params, opt_state), order.reshape(n_batches, -1))
         return params, opt_state, jax.tree_util.tree_map(jnp.mean, terms)
 
     return epoch

@@ -161,15 +161,9 @@ def epoch_order(key, n_samples: int, batch_size: int) -> np.ndarray:
     return order[: n_batches * batch_size].astype(np.int32).reshape(n_batches, batch_size)
 
 
-def make_epoch(model_cfg: ModelConfig, cfg: TrainConfig, optimizer: optax.GradientTransformation, n_samples: int):
-    """An epoch: shuffle (:func:`epoch_order`), then a jitted ``lax.scan`` over full minibatches.
-
-    The samples are gathered in the epoch's order once, so each step reads its minibatch
-    contiguously instead of gathering it from the whole set.
-
-    Returns:
-      epoch(params, opt_state, key, x (S, D), y (S,)) -> (params, opt_state, mean loss terms)
-    """
+def make_step(model_cfg: ModelConfig, cfg: TrainConfig, optimizer: optax.GradientTransformation):
+    """One optimiser step on a minibatch, in ``lax.scan``'s form:
+    step((params, opt_state), (x (B, D), y (B,))) -> ((params, opt_state), loss terms)."""
 
     def total(params, xb, yb):
         t = loss_terms(params, model_cfg, xb, yb, cfg.near_weight)
@@ -181,10 +175,24 @@ def make_epoch(model_cfg: ModelConfig, cfg: TrainConfig, optimizer: optax.Gradie
         updates, opt_state = optimizer.update(grads, opt_state, params)
         return (optax.apply_updates(params, updates), opt_state), terms
 
+    return step
+
+
+def make_epoch(model_cfg: ModelConfig, cfg: TrainConfig, optimizer: optax.GradientTransformation, n_samples: int):
+    """An epoch: shuffle (:func:`epoch_order`), then a jitted ``lax.scan`` of :func:`make_step` over full
+    minibatches.
+
+    The samples are gathered in the epoch's order once, so each step reads its minibatch
+    contiguously instead of gathering it from the whole set.
+
+    Returns:
+      epoch(params, opt_state, key, x (S, D), y (S,)) -> (params, opt_state, mean loss terms)
+    """
+    step = make_step(model_cfg, cfg, optimizer)
+
     @jax.jit
     def scan(params, opt_state, order, x, y):
-        batches = (x[order], y[order])
-        (params, opt_state), terms = jax.lax.scan(step, (params, opt_state), batches)
+        (params, opt_state), terms = jax.lax.scan(step, (params, opt_state), (x[order], y[order]))
         return params, opt_state, jax.tree_util.tree_map(jnp.mean, terms)
 
     def epoch(params, opt_state, key, x, y):
