@@ -48,7 +48,6 @@ next run goes on from its last epoch), complete recordings are kept; exit 130 / 
 from __future__ import annotations
 
 import dataclasses
-import importlib.util
 import json
 import os
 import signal
@@ -474,9 +473,12 @@ def main(argv=None) -> int:
     if not existing.is_dir() or not os.access(existing, os.W_OK | os.X_OK):
         print(f"error: cannot write recordings to {out}: {existing} is not a writable folder", file=sys.stderr)
         return 2
-    if args.executor == "ray" and importlib.util.find_spec("ray") is None:
-        print("error: --executor ray needs Ray: pip install 'ncedf[cluster]'", file=sys.stderr)
-        return 2
+    if args.executor == "ray":
+        from scenarios.sweep import ray_missing
+
+        if why := ray_missing():
+            print(f"error: {why}", file=sys.stderr)
+            return 2
     command = "python -m scenarios.reproduce " + " ".join(sys.argv[1:] if argv is None else argv)
 
     status = 0

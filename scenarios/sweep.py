@@ -290,6 +290,11 @@ class _Stop:
             signal.signal(sig, handler)
 
 
+def ray_missing() -> str | None:
+    """Why ``--executor ray`` cannot run here (Ray is not installed), or None."""
+    return None if importlib.util.find_spec("ray") else "--executor ray needs Ray: pip install 'ncedf[cluster]'"
+
+
 def _cpu_count() -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
@@ -679,8 +684,8 @@ def _main(args: argparse.Namespace, command: str) -> int:
     if args.option:
         common["options"] = tuple(args.option)
     if args.executor == "ray":
-        if importlib.util.find_spec("ray") is None:
-            print("error: --executor ray needs Ray: pip install 'ncedf[cluster]'", file=sys.stderr)
+        if why := ray_missing():
+            print(f"error: {why}", file=sys.stderr)
             return 2
     elif args.address is not None:
         print("error: --address is for --executor ray", file=sys.stderr)
