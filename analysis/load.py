@@ -19,6 +19,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from analysis import paper
 from analysis.stats import pooled_mean_std
 from ncedf.robot import RobotSpec
 from recorder import RecorderError, load_summaries, schema
@@ -89,6 +90,13 @@ def load(folder: str | Path) -> Recordings:
     runs["goal_kind"] = runs["settings.goal"].fillna("fixed") if "settings.goal" in runs else "fixed"
     runs["robot"] = [robot_label(row) for _, row in runs.iterrows()]
     return Recordings(runs, manifests, problems, seconds, files)
+
+
+def sphere_episodes(rec: Recordings) -> pd.DataFrame:
+    """The dynamic-sphere episodes of Table III's robot (``paper.TABLE3_LINKS`` of the paper's links, the
+    scene as built): those whose environments Table III's floor columns and ``scenarios.floor`` judge."""
+    runs = rec.scenario("spheres")
+    return runs[(runs["links"] == paper.TABLE3_LINKS) & (runs["robot"] == "")] if not runs.empty else runs
 
 
 def robot_label(run: pd.Series) -> str:

@@ -22,6 +22,8 @@ TABLE1 = {
 TABLE2 = {True: (0.017, 0.024, 0.002), False: (0.018, 0.024, 0.011)}
 #: Table III (1000 environments): representation -> (success, collision, stuck, MPPI step s).
 TABLE3_ENVIRONMENTS = 1000
+#: Table III's robot: this many of the paper's links.
+TABLE3_LINKS = 4
 TABLE3 = {
     "ncedf": (0.986, 0.006, 0.008, 0.006), "spheres": (0.872, 0.005, 0.123, 0.005),
     "pointcloud:1000": (0.942, 0.052, 0.006, 0.062), "pointcloud:5000": (0.984, 0.008, 0.008, 0.284),

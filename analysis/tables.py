@@ -12,7 +12,7 @@ import numpy as np
 import pandas as pd
 
 from analysis import paper
-from analysis.load import Recordings, hardware, pooled
+from analysis.load import Recordings, hardware, pooled, sphere_episodes
 from analysis.report import Table, fmt, fmt_pm, fmt_rate
 from analysis.stats import mean_std, wilson
 from scenarios import WORLDS
@@ -143,11 +143,11 @@ def _groups(runs: pd.DataFrame, keys) -> list[tuple[tuple, pd.DataFrame]]:
 
 
 def _environments(rec: Recordings, goal: str) -> tuple[set, set, set, bool]:
-    """The sphere environments of one goal kind (the paper's 4-link robot) that some motion solves (a
+    """The sphere environments of one goal kind (:func:`analysis.load.sphere_episodes`) that some motion solves (a
     recorded episode reached the goal, or the floor's oracle found a judged motion), where the oracle
     found none, and where a collision is certain (``scenarios.floor``); and whether any verdict exists."""
-    episodes = rec.scenario("spheres")
-    episodes = episodes[(episodes["goal_kind"] == goal) & (episodes["links"] == 4) & (episodes["robot"] == "")]
+    episodes = sphere_episodes(rec)
+    episodes = episodes[episodes["goal_kind"] == goal]
     verdicts = rec.scenario("floor")
     verdicts = verdicts[verdicts["goal_kind"] == goal] if not verdicts.empty else verdicts
     solved = set(episodes.loc[episodes["outcome"] == "success", "env_seed"].astype(int))

@@ -31,10 +31,11 @@ from pathlib import Path
 import jax
 import numpy as np
 
+from analysis.paper import TABLE3_LINKS
 from ncedf.geometry import robot_mesh_arrays
 from ncedf.mppi import MPPIConfig
 from ncedf.robot import RobotSpec, forward_kinematics
-from recorder import Recorder, RecordingInterrupted, load_summaries
+from recorder import Recorder, RecordingInterrupted
 from recorder.cli import EXIT_STATUS, OneLineParser, Stopped, exit_with, stop_on_signals
 from scenarios.episode import obstacle_shapes
 from scenarios.oracle import OracleConfig, closest_approach, plan_reach
@@ -43,8 +44,8 @@ from scenarios.world import World
 
 #: Scenario name of a verdict's recording.
 SCENARIO = "floor"
-#: The robot of the paper's sphere scene.
-LINKS = 4
+#: The robot of the paper's sphere scene (Table III's).
+LINKS = TABLE3_LINKS
 #: Control step of the scenarios, s (every preset keeps the default).
 STEP_DT = MPPIConfig.dt
 #: Horizons the oracle tries, steps, shortest first (the fastest reach of the fixed goal found is 8).
@@ -155,18 +156,13 @@ def record_verdict(stem: Path, goal_kind: str, env: int, world: World, goal: np.
 
 
 def open_environments(folder: Path) -> list[tuple[str, int]]:
-    """(goal kind, environment seed) of the sphere episodes under ``folder`` (the paper's robot,
-    ``LINKS`` links, finished) where none reached the goal, sorted."""
-    runs = load_summaries(folder)
-    if runs.empty or "scenario" not in runs:
+    """(goal kind, environment seed) of the sphere episodes under ``folder`` that Table III counts
+    (:func:`analysis.load.sphere_episodes`) where none reached the goal, sorted."""
+    from analysis.load import load, sphere_episodes
+
+    runs = sphere_episodes(load(folder))
+    if runs.empty:
         return []
-    runs = runs[(runs["scenario"] == "spheres") & (runs["links"] == LINKS) & runs["complete"].astype(bool)
-                & runs["outcome"].isin(("success", "collision", "stuck"))]
-    if "robot.length" in runs:
-        paper = RobotSpec(LINKS)
-        runs = runs[(runs["robot.length"] == paper.length) & (runs["robot.radius"] == paper.radius)]
-    goals = runs["settings.goal"].fillna("fixed") if "settings.goal" in runs else "fixed"
-    runs = runs.assign(goal_kind=goals)
     solved = runs.groupby(["goal_kind", "env_seed"])["outcome"].apply(lambda o: bool((o == "success").any()))
     return sorted((str(goal), int(env)) for (goal, env), ok in solved.items() if not ok)
 
