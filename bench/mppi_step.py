@@ -2,6 +2,7 @@
 
     python bench/mppi_step.py --links 4 5 7 --samples 800 --horizon 20 --points 500
     python bench/mppi_step.py --quick
+    python bench/mppi_step.py --links 4 7 --reps ncedf --k2 12 --segments 2   # other broad-phase sizes
 
 Scene: the paper's cluttered environment as ``scenarios.cluttered`` defines it
 (Sec. VI-D; three boxes, points on their faces, two spheres of 30 surface points)
@@ -87,7 +88,7 @@ def run(links, rep, args, model, points):
     horizon = args.horizon if (links <= 6 or args.same_horizon) else args.horizon_long
     base = dict(samples=args.samples, horizon=horizon, max_points=max(len(points), 1))
     shape = build_shape(rep, spec, model)
-    fast = Controller(spec, shape, ControllerConfig(MPPIConfig(**base), broad_phase=BroadPhase(args.k1, args.k2)))
+    fast = Controller(spec, shape, ControllerConfig(MPPIConfig(**base), broad_phase=BroadPhase(args.k1, args.k2, args.segments)))
     ref = Controller(spec, shape, ControllerConfig(MPPIConfig(**base), broad_phase=None))
     pts, mask = fast.pad_points(points)
     goal = jnp.asarray(cluttered.GOAL, jnp.float32)
@@ -155,7 +156,7 @@ def closed_loop(args, model):
     runs = {}
     for bp in (True, False):
         cfg = ControllerConfig(MPPIConfig(samples=args.cl_samples, horizon=args.horizon, max_points=len(cloud)),
-                               broad_phase=BroadPhase(args.k1, args.k2) if bp else None)
+                               broad_phase=BroadPhase(args.k1, args.k2, args.segments) if bp else None)
         m = Controller(spec, shape, cfg)
         pts, mask = m.pad_points(cloud)
         st = m.init(jax.random.PRNGKey(args.seed)).mppi
@@ -217,6 +218,7 @@ def main(argv=None):
                    help="comma-separated representations (default " + DEFAULT_REPS.replace(",", ", ") + ")")
     p.add_argument("--k1", type=int, default=BroadPhase.k1)
     p.add_argument("--k2", type=int, default=BroadPhase.k2)
+    p.add_argument("--segments", type=int, default=BroadPhase.capsule_segments, help="capsules per link")
     p.add_argument("--model", default=None, help="N-CEDF weights (default: the shipped model)")
     p.add_argument("--random-model", action="store_true", help="untrained 4x16 network (timing only)")
     p.add_argument("--seed", type=int, default=0)
@@ -254,7 +256,7 @@ def main(argv=None):
     t_start = time.perf_counter()
     print(
         f"jax {jax.__version__} on {jax.devices()[0].platform}; samples {args.samples}, points {len(points)}, "
-        f"k1 {args.k1}, k2 {args.k2}, capsule segments {BroadPhase.capsule_segments}; broad phase timed over "
+        f"k1 {args.k1}, k2 {args.k2}, capsule segments {args.segments}; broad phase timed over "
         f"{args.steps} steps, brute force over the first {args.ref_steps} of them on the same inputs "
         f"(column n; both AOT-compiled first, no warm-up step)"
     )

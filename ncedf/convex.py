@@ -98,7 +98,7 @@ FIT_CACHE = 8
 #: Balls per link that cover the robot body for the clearance to the polytopes.
 COVER_SPHERES = 10
 #: Robot states per pass of :func:`robot_clearance`.
-CLEARANCE_CHUNK = 1024
+CLEARANCE_CHUNK = 8192
 
 
 class Polytopes(NamedTuple):

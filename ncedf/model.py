@@ -100,6 +100,22 @@ class ModelConfig:
         return 5 if self.encoding == "paper" else 4
 
 
+#: log1p(t) on [0, 1] as a degree-7 polynomial (least squares on Chebyshev nodes; largest error 2.3e-7).
+_LOG1P = (2.2159764512252877e-07, 0.9999702572822571, -0.4993339478969574, 0.327511727809906,
+          -0.22396689653396606, 0.13198965787887573, -0.053267478942871094, 0.010243828408420086)
+
+
+def softplus(x: jnp.ndarray) -> jnp.ndarray:
+    """``log(1 + e^x)`` within 2.3e-7 (plus float32 rounding): ``max(x, 0) + log1p(e^-|x|)`` with
+    the ``log1p`` of ``t`` in (0, 1] a polynomial. On a CPU a third of the cost of XLA's
+    ``logaddexp``, whose exponential and logarithm dominated the network's inference."""
+    t = jnp.exp(jnp.minimum(x, -x))  # e^-|x|; its derivative at 0 is 0 (that of -|x| would be -1)
+    poly = jnp.asarray(_LOG1P[-1], x.dtype)
+    for c in _LOG1P[-2::-1]:
+        poly = poly * t + jnp.asarray(c, x.dtype)
+    return jnp.maximum(x, 0.0) + poly
+
+
 class MLP(nn.Module):
     """Softplus MLP with He-uniform kernels; ``layers`` Dense layers, scalar output."""
 
@@ -110,7 +126,7 @@ class MLP(nn.Module):
     def __call__(self, x: jnp.ndarray) -> jnp.ndarray:
         init = nn.initializers.he_uniform()
         for _ in range(self.layers - 1):
-            x = nn.softplus(nn.Dense(self.width, kernel_init=init, precision=MATMUL)(x))
+            x = softplus(nn.Dense(self.width, kernel_init=init, precision=MATMUL)(x))
         return nn.Dense(1, kernel_init=init, precision=MATMUL)(x)[..., 0]
 
 

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from ncedf.geometry import robot_signed_distance
-from ncedf.model import MLP, chord_bounds, ModelConfig, ModelError, NCEDF, encode, init_params, load_model, save_model
+from ncedf.model import (MLP, ModelConfig, ModelError, NCEDF, chord_bounds, encode, init_params, load_model, save_model,
+                         softplus)
 from ncedf.robot import RobotSpec, arc_lengths_to_config, config_to_arc_lengths, forward_kinematics, sample_arc_lengths
 
 SPEC = RobotSpec(1)
@@ -155,3 +156,16 @@ def test_outside_the_training_box_the_link_distance_is_clamped_to_the_chord_boun
         arc = config_to_arc_lengths(jnp.array([theta]), jnp.array([phi]), model.spec)
         true = np.abs(np.asarray(robot_signed_distance(pts, arc, model.spec)))[outside]
         assert np.mean(np.abs(pred[outside] - true) / true) < 0.05
+
+
+def test_softplus_is_log_one_plus_exp():
+    # Against the closed form in float64 (numpy's log1p and exp) over the range a layer meets
+    # and beyond; its derivative against the logistic function.
+    x = np.linspace(-40.0, 40.0, 400001)
+    exact = np.maximum(x, 0.0) + np.log1p(np.exp(-np.abs(x)))
+    with jax.enable_x64(True):
+        got = np.asarray(softplus(jnp.asarray(x)))
+        slope = np.asarray(jax.vmap(jax.grad(softplus))(jnp.asarray(x)))
+    assert np.max(np.abs(got - exact)) < 2.5e-7
+    assert np.max(np.abs(slope - 1.0 / (1.0 + np.exp(-x)))) < 3e-5
+    assert np.max(np.abs(np.asarray(softplus(jnp.asarray(x, jnp.float32))) - exact)) < 2e-6

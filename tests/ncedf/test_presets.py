@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pytest
 
+from ncedf.broad_phase import BroadPhase
 from ncedf.controller import config_from_dict, config_to_dict
 from ncedf.grid_model import GridModel
 from ncedf.guide import Guide
@@ -55,11 +56,13 @@ def test_bad_metadata_is_named():
 
 @pytest.mark.parametrize("name", ["paper", "release"])
 def test_flat_settings_of_old_recordings_are_the_presets_of_today(name):
-    """The flat settings the release and paper presets wrote before the stages (their non-default fields)."""
+    """The flat settings the release and paper presets wrote before the stages (their non-default fields),
+    with the broad phase's sizes of then (12 pairs per state, 2 capsules per link)."""
     flat = {"samples": 800, "horizon": 20, "max_points": 512}
     if name == "release":
         flat.update(covariance=0.1, noise_clip=0.5, w_goal_terminal=22.0, w_coll_terminal=1.1, w_perturbation=0.1)
-    assert config_from_dict(flat) == preset(name, RobotSpec(4), Observation(500))
+    then = dataclasses.replace(preset(name, RobotSpec(4), Observation(500)), broad_phase=BroadPhase(k2=12, capsule_segments=2))
+    assert config_from_dict(flat) == then
     with pytest.raises(ValueError, match="sweep_first"):
         config_from_dict({**flat, "sweep_first": True})
 
