@@ -18,6 +18,7 @@ import pytest
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
 
+from ncedf.broad_phase import BroadPhase
 from ncedf.controller import config_from_dict
 from recorder import load_run, schema
 from scenarios import episode as episode_mod
@@ -220,11 +221,13 @@ def test_goal_errors_of_a_pose_goal():
 @pytest.mark.parametrize("path", sorted((Path(__file__).parents[2] / "results" / "closed_loop").glob("*.mcap")))
 def test_recordings_made_before_the_stages_rebuild_their_episode(path):
     """The committed recordings hold the flat controller settings of their day; read back, they are
-    the controller that their settings build today."""
+    the controller that their settings build today, with the broad phase's sizes of then (12 pairs per
+    state, 2 capsules per link)."""
     run = load_run(path)
     assert "safety_check" in run.meta["mppi"]  # the flat form
     settings = EpisodeSettings.from_dict(run.meta["settings"])
-    assert config_from_dict(run.meta["mppi"]) == Episode(settings).scene.config
+    then = dataclasses.replace(Episode(settings).scene.config, broad_phase=BroadPhase(k2=12, capsule_segments=2))
+    assert config_from_dict(run.meta["mppi"]) == then
 
 
 def test_removed_experiments_in_old_settings_are_named():
