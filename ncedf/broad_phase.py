@@ -101,7 +101,7 @@ class BroadPhase:
       k2: (link, point) pairs evaluated per rollout state.
       capsule_segments: sub-arc capsules per link. Three capsules bound a link tighter than two
         (the sagitta of a third of the arc), so fewer pairs hold the minimum: with 6 pairs the
-        rollout minima agree with brute force as often as 12 pairs of two capsules
+        rollout minima agree with brute force about as often as with 12 pairs of two capsules
         (``bench/mppi_step.py``).
       selection: "mean" (candidates around the rollouts' average per horizon step: fast) or
         "state" (per rollout state from groups of the cloud).
