@@ -13,9 +13,12 @@ without assuming convexity:
   radius ``gap`` in a sampled surface the grown balls still stand
   ``sqrt(reach^2 - gap^2)`` high, so the hole stays closed, while an opening's
   edges move in by only ``reach - sqrt(reach^2 - gap^2)`` (a cavity or passage
-  narrower than ``2 reach`` fills, though). Free cells that do not connect to
-  the grid's border are enclosed by the closed surface, inside a solid, and are
-  closed too;
+  narrower than ``2 reach`` fills, though). Each surface is closed on its own:
+  the hit cells joined wherever two lie within ``REACH`` gaps, more than a hole's
+  width, so that a passage between two obstacles (a lane between pillars, a slot
+  between slabs) keeps its width less the two edges' move. Free cells that do not
+  connect to the grid's border are enclosed by the closed surfaces, inside a
+  solid, and are closed too;
 * the field: at a free cell's centre the distance to the nearest observed point
   or closed cell without a point, whichever is nearer (the points' distance
   exact, by a k-d tree, within ``EXACT_BAND`` of them; farther, the distance to
@@ -50,6 +53,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from scipy import ndimage
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from ncedf.convex import COVER_SPHERES, static_rows
@@ -61,7 +66,7 @@ from ncedf.validate import check_fields
 GRID_CACHE = 4
 #: The field's value without static obstacles, m (finite: the interpolation weighs it by zero).
 FAR = 1e6
-#: The reach at first, in gaps.
+#: The reach at first, and the distance that joins two hit cells into one surface, in gaps.
 REACH = 2.0
 #: The factor the reach shrinks by while it shuts the goal in.
 SHRINK = 0.9
@@ -124,12 +129,28 @@ def border_labels(labels: np.ndarray) -> np.ndarray:
     return np.unique(border[border > 0])
 
 
-def closed_cells(hit: np.ndarray, h: float, reach: float, gap: float) -> np.ndarray:
-    """(X, Y, Z) bool: the hit cells grown by ``reach`` m and shrunk by ``sqrt(reach^2 - gap^2)``
-    (module docstring), enclosed free space filled."""
-    grown = ndimage.distance_transform_edt(~hit, sampling=h) <= reach
+def surfaces(cells: np.ndarray, link: float, h: float) -> list[np.ndarray]:
+    """The hit cells (N, 3 ints) split into surfaces: the components of the graph that joins two
+    cells at most ``link`` m apart."""
+    pairs = cKDTree(cells * h).query_pairs(link, output_type="ndarray")
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(cells), len(cells)))
+    count, labels = connected_components(graph, directed=False)
+    return [cells[labels == k] for k in range(count)]
+
+
+def closed_cells(parts: list[np.ndarray], shape: tuple, h: float, reach: float, gap: float) -> np.ndarray:
+    """(X, Y, Z) bool: each surface's hit cells (N, 3 ints) grown by ``reach`` m and shrunk by
+    ``sqrt(reach^2 - gap^2)`` on its own (module docstring), enclosed free space filled."""
+    closed = np.zeros(shape, bool)
     shrink = np.sqrt(max(reach**2 - gap**2, 0.0))
-    closed = hit | (ndimage.distance_transform_edt(grown, sampling=h) > shrink)
+    margin = int(np.ceil(reach / h)) + 1
+    for cells in parts:
+        low, high = np.maximum(cells.min(axis=0) - margin, 0), np.minimum(cells.max(axis=0) + margin + 1, shape)
+        hit = np.zeros(high - low, bool)
+        hit[tuple((cells - low).T)] = True
+        grown = ndimage.distance_transform_edt(~hit, sampling=h) <= reach
+        box = tuple(slice(a, b) for a, b in zip(low, high))
+        closed[box] |= hit | (ndimage.distance_transform_edt(grown, sampling=h) > shrink)
     labels, _ = ndimage.label(~closed)
     return closed | ~np.isin(labels, border_labels(labels))
 
@@ -162,14 +183,16 @@ def _fit(data: bytes, anchors: bytes, model: GridModel) -> Grid:
     origin, h, shape = grid_box(points, anchors, model)
     if len(points) == 0:  # no static obstacle: far everywhere
         return Grid(origin.astype(np.float32), np.float32(h), np.full((2, 2, 2), FAR, np.float32))
+    cells = np.unique(np.rint((points - origin) / h).astype(int), axis=0)
     hit = np.zeros(shape, bool)
-    hit[tuple(np.rint((points - origin) / h).astype(int).T)] = True
+    hit[tuple(cells.T)] = True
+    parts = surfaces(cells, REACH * model.gap, h)
     goal = tuple(np.clip(np.rint((anchors[-1] - origin) / h).astype(int), 0, np.asarray(shape) - 1))
     reach = REACH * model.gap
-    field = signed_field(closed_cells(hit, h, reach, model.gap), hit, points, origin, h)
+    field = signed_field(closed_cells(parts, shape, h, reach, model.gap), hit, points, origin, h)
     while reach > h and not goal_open(field, goal, model.keep_open):
         reach *= SHRINK
-        field = signed_field(closed_cells(hit, h, reach, model.gap), hit, points, origin, h)
+        field = signed_field(closed_cells(parts, shape, h, reach, model.gap), hit, points, origin, h)
     return Grid(origin.astype(np.float32), np.float32(h), field)
 
 

@@ -178,6 +178,45 @@ def test_an_opening_of_the_robots_diameter_and_a_margin_stays_open_in_a_closed_w
     assert 2.0 <= float(guided_distance(field, jnp.asarray(start, jnp.float32))) < 2.0 * 1.15
 
 
+def pillars(density: float, spacing: float, radius: float = 0.25, height: float = 4.0, seed: int = 0) -> np.ndarray:
+    """Points uniform at ``density`` per m^2 on the round faces of a 3 x 3 grid of upright
+    cylinders (axes at x in {2, 2 + spacing, 2 + 2 spacing}, y in {-spacing, 0, spacing}, z in
+    [0, height]) and their top discs."""
+    rng = np.random.default_rng(seed)
+    clouds = []
+    for cx in 2.0 + spacing * np.arange(3):
+        for cy in spacing * np.arange(-1, 2):
+            side = rng.poisson(density * 2 * np.pi * radius * height)
+            angle, z = rng.uniform(0, 2 * np.pi, side), rng.uniform(0, height, side)
+            top = rng.poisson(density * np.pi * radius**2)
+            r, a = radius * np.sqrt(rng.uniform(0, 1, top)), rng.uniform(0, 2 * np.pi, top)
+            clouds.append(np.column_stack([cx + radius * np.cos(angle), cy + radius * np.sin(angle), z]))
+            clouds.append(np.column_stack([cx + r * np.cos(a), cy + r * np.sin(a), np.full(top, height)]))
+    return np.concatenate(clouds).astype(np.float32)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_the_lanes_between_separate_pillars_stay_open_and_their_surfaces_closed(seed):
+    """16 points per m^2 on nine pillars of radius 0.25 m whose faces stand 1 m apart (the robot's
+    0.4 m diameter and 0.3 m each side), narrower than the closing's span (twice the reach): every
+    point of a pillar's round face is closed to the robot's radius, the lanes' midpoints have room
+    for the robot's radius and a margin, and the guided distance along a lane is the straight line
+    (round the field it would be over 1.5 times as long)."""
+    points = pillars(16.0, 1.5, seed=seed)
+    gap = sampling_gap(points)
+    assert 2 * REACH * gap > 1.0
+    goal, start = np.array([6.0, 0.75, 2.0]), np.array([1.0, 0.75, 2.0])
+    grid = fit(points, goal, gap)
+    angle, z = np.meshgrid(np.linspace(0, 2 * np.pi, 24), np.linspace(0.5, 3.5, 7))
+    face = np.column_stack([2.0 + 0.25 * np.cos(angle.ravel()), 0.25 * np.sin(angle.ravel()), z.ravel()])
+    assert np.all(np.asarray(grid_distance(grid, jnp.asarray(face, jnp.float32))) < 0.2)
+    lanes = np.array([[x, y, 2.0] for x in (2.0, 3.5, 5.0) for y in (-0.75, 0.75)], np.float32)
+    assert np.all(np.asarray(grid_distance(grid, jnp.asarray(lanes))) >= 0.2 + 0.05)
+    field = Guide(0.2).fit(grid, goal)
+    straight = float(np.linalg.norm(goal - start))
+    assert straight <= float(guided_distance(field, jnp.asarray(start, jnp.float32))) < straight * 1.15
+
+
 def test_the_guides_gradient_at_a_cell_is_numpys_over_the_whole_grid():
     values = np.random.default_rng(0).normal(size=(7, 5, 9))
     full = [np.gradient(values, 0.2, axis=k) for k in range(3)]
