@@ -58,7 +58,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from ncedf.convex import COVER_SPHERES, static_rows
-from ncedf.robot import RobotSpec
+from ncedf.robot import BASE, RobotSpec
 from ncedf.shapes import SphereShape
 from ncedf.validate import check_fields
 
@@ -110,7 +110,7 @@ class GridModel:
         the previous observation (P, 3), (P,) (none at first), around the goal position (3,) m."""
         static = np.asarray(points)[static_rows(np.asarray(points), np.asarray(mask), np.asarray(previous),
                                                 np.asarray(previous_mask))]
-        anchors = np.stack([np.zeros(3), np.asarray(goal, np.float64)])
+        anchors = np.stack([BASE, np.asarray(goal, np.float64)])
         return _fit(np.ascontiguousarray(static, np.float64).tobytes(), anchors.tobytes(), self)
 
 

@@ -10,7 +10,9 @@ the obstacle model's static polytopes (``ncedf.route``; the moving ones are
 left out) or its grid, unless the model left a static cluster out as not convex (the
 roadmap would not see that obstacle). Its goal states arrive along the goal's
 approach axis where the goal is a pose, else, with the guide's field, along the
-guided path (``ncedf.guide.approach``). Where the roadmap holds
+guided path from the robot's base (``ncedf.guide.approach``): the body runs from the
+base to the goal, so it arrives the way free space leads from the base, whichever
+way the stalled tip would have gone on. Where the roadmap holds
 none, nothing changes. Else it executes the
 route: each step moves to the farthest route state within one step's bound
 (or towards the next, at the bound) if that move passes the safety check,
@@ -34,8 +36,8 @@ import numpy as np
 from ncedf.guide import approach
 from ncedf.mppi import MPPIState
 from ncedf.obstacle_model import left_out, static_part
-from ncedf.robot import RobotSpec
-from ncedf.route import RouteConfig, plan_route, tips
+from ncedf.robot import BASE, RobotSpec
+from ncedf.route import RouteConfig, plan_route
 from ncedf.validate import check_fields
 
 #: Route states kept (a longer route is thinned evenly).
@@ -91,14 +93,13 @@ def start_route(recovery: RouteRecovery, spec: RobotSpec, route: RouteState, mpp
                 model, guide=None) -> tuple[RouteState, MPPIState]:
     """Plan a route from ``arc`` (M, 3) to ``goal`` round the still part of the fitted obstacle model
     (``ncedf.obstacle_model.static_part``): to a pose (4, 4) along its approach axis (its z axis), to
-    a position (3,) along the guide's path where there is a guide (``ncedf.guide.approach``)."""
+    a position (3,) along the guide's path from the base where there is a guide (``ncedf.guide.approach``)."""
     arc, goal = np.asarray(arc), np.asarray(goal)
     pose = goal.shape == (4, 4)
     if pose:
         goal, direction = goal[:3, 3], goal[:3, 2]
     else:
-        direction = None if guide is None else approach(guide, tips(arc[None], spec)[0], goal,
-                                                        recovery.route.approach_back)
+        direction = None if guide is None else approach(guide, BASE, goal, recovery.route.approach_back)
     path = plan_route(spec, static_part(model), arc, goal, jax.random.fold_in(mppi.key, ROUTE_SALT),
                       recovery.route, direction, aligned_only=pose)
     if path is None:  # the stall count goes on, and with it the stall escape

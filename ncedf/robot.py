@@ -25,6 +25,8 @@ import numpy as np
 
 SQRT3 = math.sqrt(3.0)
 CHAMBER_ANGLES = (0.0, 2.0 * math.pi / 3.0, 4.0 * math.pi / 3.0)
+#: The base's position, m: the world origin (the first frame of :func:`forward_kinematics` is the identity).
+BASE = np.zeros(3)
 # Below this theta^2 the even functions of theta use their Taylor series.
 _SMALL_THETA_SQ = 1e-4
 

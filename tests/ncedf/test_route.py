@@ -342,3 +342,30 @@ def test_aligned_goal_states_and_their_retraction_chains_follow_the_approach(pol
     off_line = np.linalg.norm(goal - tips(chains, spec) - back[:, None] * direction, axis=1)
     assert len(chains) > 0 and np.all(np.isin(np.round(back / 0.2), [1, 2, 3])) and np.all(off_line < 0.2)
     assert np.all(clearances(chains, spec, polytopes) >= config.edge_clearance)
+
+
+def test_a_position_goals_route_arrives_along_the_free_path_from_the_base(monkeypatch):
+    """A slot between two dense slabs (x in [3, 6], open at both ends), the goal in its middle and the
+    tip stalled above its far end: the free path from the tip would enter the slot from its far end
+    (-x), the body's from the base enters it from the near end; the route's goal states arrive along
+    the latter (+x)."""
+    from ncedf.grid_model import GridModel
+    from ncedf.guide import Guide
+    from ncedf.mppi import MPPIState
+    from ncedf.recovery import no_route, start_route
+
+    xy = np.stack(np.meshgrid(np.arange(3.0, 6.01, 0.1), np.arange(-3.0, 3.01, 0.1)), -1).reshape(-1, 2)
+    slabs = np.concatenate([np.column_stack([xy, np.full(len(xy), z)]) for z in (2.0, 3.2)]).astype(np.float32)
+    goal = np.array([4.5, 0.0, 2.6])
+    mask = np.ones(len(slabs), bool)
+    grid = GridModel(0.1, 0.2).fit(slabs, mask, slabs, mask, goal)
+    field = Guide(0.2).fit(grid, goal)
+    asked = []
+    monkeypatch.setattr("ncedf.recovery.plan_route", lambda *args, **kwargs: asked.append(args[6]))
+    spec = RobotSpec(n_links=5)
+    stalled = config_to_arc_lengths(jnp.asarray([0.4, 0.4, 0.4, 0.3, 0.8]), jnp.zeros(5), spec)  # bent towards +x
+    tip = np.asarray(end_effector_pose(stalled, spec))[:3, 3]
+    assert tip[0] > 6.0 and tip[2] > 3.2  # above the far end
+    mppi = MPPIState(*[None] * len(MPPIState._fields))._replace(key=jax.random.PRNGKey(0))
+    start_route(RouteRecovery(), spec, no_route(spec), mppi, np.asarray(stalled), goal, grid, field)
+    assert asked[0] @ np.array([1.0, 0.0, 0.0]) > 0.9
