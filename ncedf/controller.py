@@ -180,7 +180,7 @@ class Controller:
         if isinstance(model, ConvexModel):
             return model.fit(points, mask, state.previous, state.previous_mask, c.mppi.dt), None
         position = np.asarray(goal)[:3, 3] if goal.shape == (4, 4) else np.asarray(goal)
-        grid = model.fit(points, mask, state.previous, state.previous_mask, position)
+        grid = model.fit(points, mask, state.previous, state.previous_mask, np.asarray(goal))
         if c.guide is None:
             return grid, None
         if self._guided[0] is not grid or self._guided[1] != position.tobytes():

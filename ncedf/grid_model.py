@@ -93,6 +93,11 @@ class GridModel:
     at least ``keep_open`` m leads from the goal's cell to the grid's border) it shrinks by
     ``SHRINK`` until one does, down to a cell (below ``gap`` the cells are grown only, and the
     widest holes stay): the passage to the goal is narrower than the reach fills.
+
+    A pose goal says that the end effector arrives along its approach axis (its z axis), so the
+    way in behind it is free: the cells within ``corridor_radius`` m of the segment
+    ``corridor_length`` m back from the goal along the axis are kept open unless they hold a
+    point (0: none kept). A sampling hole as wide as the opening would otherwise close it.
     """
 
     gap: float
@@ -100,18 +105,25 @@ class GridModel:
     resolution: float = 0.1
     max_cells: int = 2_000_000
     pad: float = 1.5
+    corridor_radius: float = 0.0
+    corridor_length: float = 0.0
 
     def __post_init__(self):
-        check_fields(self, positive=("gap", "keep_open", "resolution", "pad"), integers=("max_cells",))
+        check_fields(self, positive=("gap", "keep_open", "resolution", "pad"), integers=("max_cells",),
+                     non_negative=("corridor_radius", "corridor_length"))
 
     def fit(self, points: np.ndarray, mask: np.ndarray, previous: np.ndarray, previous_mask: np.ndarray,
             goal: np.ndarray) -> Grid:
         """The grid of the rows of the padded cloud (P, 3) with mask (P,) that did not move since
-        the previous observation (P, 3), (P,) (none at first), around the goal position (3,) m."""
+        the previous observation (P, 3), (P,) (none at first), around the goal: a position (3,) m
+        or a pose (4, 4) (its approach corridor kept open)."""
         static = np.asarray(points)[static_rows(np.asarray(points), np.asarray(mask), np.asarray(previous),
                                                 np.asarray(previous_mask))]
-        anchors = np.stack([BASE, np.asarray(goal, np.float64)])
-        return _fit(np.ascontiguousarray(static, np.float64).tobytes(), anchors.tobytes(), self)
+        goal = np.asarray(goal, np.float64)
+        position = goal[:3, 3] if goal.shape == (4, 4) else goal
+        ends = [position - self.corridor_length * goal[:3, 2]] if goal.shape == (4, 4) and self.corridor_radius else []
+        anchors = np.stack([BASE, *ends, position])
+        return _fit(np.ascontiguousarray(static, np.float64).tobytes(), anchors.tobytes(), bool(ends), self)
 
 
 def grid_box(points: np.ndarray, anchors: np.ndarray, model: GridModel) -> tuple[np.ndarray, float, tuple]:
@@ -177,7 +189,9 @@ def goal_open(field: np.ndarray, cell: tuple, room: float) -> bool:
 
 
 @functools.lru_cache(maxsize=GRID_CACHE)
-def _fit(data: bytes, anchors: bytes, model: GridModel) -> Grid:
+def _fit(data: bytes, anchors: bytes, corridor: bool, model: GridModel) -> Grid:
+    """The grid of the points (bytes of (P, 3)) round the anchors (bytes of (N, 3): the base, with a
+    ``corridor`` its far end, and the goal position)."""
     points = np.frombuffer(data, np.float64).reshape(-1, 3)
     anchors = np.frombuffer(anchors, np.float64).reshape(-1, 3)
     origin, h, shape = grid_box(points, anchors, model)
@@ -188,12 +202,28 @@ def _fit(data: bytes, anchors: bytes, model: GridModel) -> Grid:
     hit[tuple(cells.T)] = True
     parts = surfaces(cells, REACH * model.gap, h)
     goal = tuple(np.clip(np.rint((anchors[-1] - origin) / h).astype(int), 0, np.asarray(shape) - 1))
+    way_in = near_segment(shape, origin, h, anchors[-2:], model.corridor_radius) & ~hit if corridor else np.zeros(shape, bool)
     reach = REACH * model.gap
-    field = signed_field(closed_cells(parts, shape, h, reach, model.gap), hit, points, origin, h)
+    field = signed_field(closed_cells(parts, shape, h, reach, model.gap) & ~way_in, hit, points, origin, h)
     while reach > h and not goal_open(field, goal, model.keep_open):
         reach *= SHRINK
-        field = signed_field(closed_cells(parts, shape, h, reach, model.gap), hit, points, origin, h)
+        field = signed_field(closed_cells(parts, shape, h, reach, model.gap) & ~way_in, hit, points, origin, h)
     return Grid(origin.astype(np.float32), np.float32(h), field)
+
+
+def near_segment(shape: tuple, origin: np.ndarray, h: float, ends: np.ndarray, radius: float) -> np.ndarray:
+    """(X, Y, Z) bool: the cells whose centres lie within ``radius`` m of the segment between the
+    two points ``ends`` (2, 3) m, on the grid of ``shape`` at ``origin`` with spacing ``h``."""
+    low = np.maximum(np.floor((ends.min(axis=0) - radius - origin) / h).astype(int), 0)
+    high = np.minimum(np.ceil((ends.max(axis=0) + radius - origin) / h).astype(int) + 1, shape)
+    index = np.stack(np.meshgrid(*[np.arange(a, b) for a, b in zip(low, high)], indexing="ij"), axis=-1)
+    centres = origin + h * index
+    axis = ends[1] - ends[0]
+    t = np.clip((centres - ends[0]) @ axis / max(float(axis @ axis), 1e-12), 0.0, 1.0)
+    near = np.linalg.norm(centres - ends[0] - t[..., None] * axis, axis=-1) <= radius
+    out = np.zeros(shape, bool)
+    out[tuple(slice(a, b) for a, b in zip(low, high))] = near
+    return out
 
 
 def corners(grid: Grid, x: jnp.ndarray) -> tuple[jnp.ndarray, jnp.ndarray]:

@@ -76,6 +76,8 @@ STALL_ESS = 0.005
 #: ``ours`` with a grid model: the route's clearances (nodes, edges) against it, m (the grid's bound
 #: lies below the body's true clearance by up to a cell's diagonal).
 GRID_ROUTE = RouteConfig(node_clearance=0.1, edge_clearance=0.05)
+#: ``ours`` with a grid model: a pose goal's corridor kept open (``GridModel``), in the robot's thickest radii.
+CORRIDOR = 2.0
 #: Neighbours whose distance estimates the samples' spacing (:func:`sampling_gap`).
 GAP_NEIGHBOURS = 8
 #: ``ours`` with balls: the low-pass noise's beta (a rollout keeps its direction over the horizon).
@@ -177,7 +179,8 @@ def ours(spec: RobotSpec, observation: Observation) -> ControllerConfig:
     if not observation.convex:
         return dataclasses.replace(
             base, mppi=dataclasses.replace(base.mppi, w_coll=SURFACE_W_COLL, w_coll_terminal=SURFACE_W_COLL),
-            model=GridModel(max(observation.gap, spec.thickest), spec.thickest), guide=Guide(spec.thickest),
+            model=GridModel(max(observation.gap, spec.thickest), spec.thickest, corridor_radius=CORRIDOR * spec.thickest,
+                            corridor_length=spec.length), guide=Guide(spec.thickest),
             temperature=EffectiveSampleSize(OURS_ESS, StallEscape(STALL_STEPS, STALL_ESS)),
             recovery=RouteRecovery(after=STALL_STEPS, route=GRID_ROUTE))
     return dataclasses.replace(

@@ -222,3 +222,29 @@ def test_the_guides_gradient_at_a_cell_is_numpys_over_the_whole_grid():
     full = [np.gradient(values, 0.2, axis=k) for k in range(3)]
     for cell in np.ndindex(values.shape):  # the border cells' one-sided differences too
         np.testing.assert_array_equal(_gradient_at(values, np.array(cell), 0.2), [g[cell] for g in full])
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_pose_goals_way_in_stays_open_where_the_samples_holes_are_as_wide_as_the_port(seed):
+    """5 points per m^2 (the charging port's density) on a wall with a 1 m port: the widest hole
+    expected between samples is about as wide as the port. With a pose goal whose approach axis runs
+    through the port, its corridor (0.4 m round a 2 m segment behind the goal) leaves the robot's
+    radius and margin (0.2 + 0.05 m) along the way in, while the wall beside the corridor is closed
+    as it is for a goal in front of it (same grid box, no shrinking)."""
+    points = wall(5.0, 1.0, seed=seed)
+    gap = sampling_gap(points)
+    assert gap > 0.45
+    pose = np.eye(4)
+    pose[:3, :3] = [[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]]  # approach axis (z) along +x
+    pose[:3, 3] = [3.0, 0.0, 0.0]
+    mask = np.ones(len(points), bool)
+    model = GridModel(gap, 0.2, corridor_radius=0.4, corridor_length=2.0)
+    in_port = jnp.asarray([[x, 0.0, 0.0] for x in (1.5, 2.0, 2.5, 3.0)], jnp.float32)
+    with_pose = model.fit(points, mask, points, mask, pose)
+    assert np.all(np.asarray(grid_distance(with_pose, in_port)) >= 0.2 + 0.05)
+    in_front = model.fit(points, mask, points, mask, np.array([2.0, 0.0, 0.0]))
+    yz = np.stack(np.meshgrid(np.linspace(-2.3, 2.3, 24), np.linspace(-2.3, 2.3, 24)), -1).reshape(-1, 2)
+    beside = yz[np.linalg.norm(yz, axis=1) > 0.4 + 1.0]
+    on_wall = jnp.asarray(np.column_stack([np.full(len(beside), 3.0), beside]), jnp.float32)
+    np.testing.assert_array_equal(np.asarray(grid_distance(with_pose, on_wall)),
+                                  np.asarray(grid_distance(in_front, on_wall)))
