@@ -202,7 +202,9 @@ def _fit(data: bytes, anchors: bytes, corridor: bool, model: GridModel) -> Grid:
     hit[tuple(cells.T)] = True
     parts = surfaces(cells, REACH * model.gap, h)
     goal = tuple(np.clip(np.rint((anchors[-1] - origin) / h).astype(int), 0, np.asarray(shape) - 1))
-    way_in = near_segment(shape, origin, h, anchors[-2:], model.corridor_radius) & ~hit if corridor else np.zeros(shape, bool)
+    way_in = np.zeros(shape, bool)
+    if corridor:
+        way_in = near_segment(shape, origin, h, anchors[-2:], model.corridor_radius) & ~hit
     reach = REACH * model.gap
     field = signed_field(closed_cells(parts, shape, h, reach, model.gap) & ~way_in, hit, points, origin, h)
     while reach > h and not goal_open(field, goal, model.keep_open):

@@ -179,8 +179,9 @@ def ours(spec: RobotSpec, observation: Observation) -> ControllerConfig:
     if not observation.convex:
         return dataclasses.replace(
             base, mppi=dataclasses.replace(base.mppi, w_coll=SURFACE_W_COLL, w_coll_terminal=SURFACE_W_COLL),
-            model=GridModel(max(observation.gap, spec.thickest), spec.thickest, corridor_radius=CORRIDOR * spec.thickest,
-                            corridor_length=spec.length), guide=Guide(spec.thickest),
+            model=GridModel(max(observation.gap, spec.thickest), spec.thickest,
+                            corridor_radius=CORRIDOR * spec.thickest, corridor_length=spec.length),
+            guide=Guide(spec.thickest),
             temperature=EffectiveSampleSize(OURS_ESS, StallEscape(STALL_STEPS, STALL_ESS)),
             recovery=RouteRecovery(after=STALL_STEPS, route=GRID_ROUTE))
     return dataclasses.replace(
