@@ -180,12 +180,12 @@ class Controller:
         if isinstance(model, ConvexModel):
             return model.fit(points, mask, state.previous, state.previous_mask, c.mppi.dt), None
         position = np.asarray(goal)[:3, 3] if goal.shape == (4, 4) else np.asarray(goal)
-        grid = model.fit(points, mask, state.previous, state.previous_mask, np.asarray(goal))
+        fitted = model.fit(points, mask, state.previous, state.previous_mask, c.mppi.dt, np.asarray(goal))
         if c.guide is None:
-            return grid, None
-        if self._guided[0] is not grid or self._guided[1] != position.tobytes():
-            self._guided = (grid, position.tobytes(), c.guide.fit(grid, position))
-        return grid, self._guided[2]
+            return fitted, None
+        if self._guided[0] is not fitted.grid or self._guided[1] != position.tobytes():
+            self._guided = (fitted.grid, position.tobytes(), c.guide.fit(fitted.grid, position))
+        return fitted, self._guided[2]
 
     def check_moves(self, arc, points, mask, model):
         """``moves (C, M, 3) -> (C,)``: the safety filter's clearance of moves from ``arc`` over a step

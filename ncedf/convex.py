@@ -131,6 +131,14 @@ def static_rows(points: np.ndarray, mask: np.ndarray, previous: np.ndarray, prev
     return mask & previous_mask & np.all(points == previous, axis=-1)
 
 
+def cloud_velocity(points: np.ndarray, mask: np.ndarray, previous: np.ndarray, previous_mask: np.ndarray,
+                   dt: float) -> np.ndarray:
+    """(P, 3) m/s: each row's displacement since the previous cloud over dt; zero where either
+    cloud has padding (the scenarios observe row ``i`` as the same physical point every step)."""
+    both = (mask & previous_mask)[:, None]
+    return np.where(both, (points - previous) / np.float32(dt), np.float32(0.0)).astype(np.float32)
+
+
 def _components(n: int, pairs: np.ndarray) -> np.ndarray:
     """(n,) int label of each of n nodes: the connected components of the edges ``pairs`` (E, 2)."""
     graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))

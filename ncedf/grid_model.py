@@ -39,6 +39,12 @@ made a link above a low obstacle's grid look deep inside it.) The robot's cleara
 (:func:`grid_clearance`) is that at the centres of the balls that cover each link
 (``ncedf.convex.COVER_SPHERES``), less their radii.
 
+The rows of the cloud seen to move (observed in both of two successive clouds, at
+different places) are not in the grid: they are closed into their clusters'
+polytopes or balls as by the convex model (``ncedf.convex``, single linkage at
+``link``, a moving cluster closed whole), each moved at its points' mean velocity.
+Left to the points, a link could pass between the samples of a moving ball.
+
 The fit runs in numpy and scipy outside the jitted step, once per static cloud
 and goal (cached), like the convex model's.
 """
@@ -57,7 +63,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from ncedf.convex import COVER_SPHERES, static_rows
+from ncedf.convex import COVER_SPHERES, Polytopes, cloud_velocity, fit_polytopes, static_rows
 from ncedf.robot import BASE, RobotSpec
 from ncedf.shapes import SphereShape
 from ncedf.validate import check_fields
@@ -84,6 +90,14 @@ class Grid(NamedTuple):
     values: jnp.ndarray
 
 
+class GridFit(NamedTuple):
+    """The grid model's fit (a pytree): the still points' ``grid`` and the ``moving`` clusters'
+    polytopes (none present before a row is seen to move)."""
+
+    grid: Grid
+    moving: Polytopes
+
+
 @dataclasses.dataclass(frozen=True)
 class GridModel:
     """The grid model (module docstring): holes of radius ``gap`` m closed, cells of
@@ -98,6 +112,8 @@ class GridModel:
     way in behind it is free: the cells within ``corridor_radius`` m of the segment
     ``corridor_length`` m back from the goal along the axis are kept open unless they hold a
     point (0: none kept). A sampling hole as wide as the opening would otherwise close it.
+
+    The moving rows' clusters are joined at single-linkage distance ``link`` m.
     """
 
     gap: float
@@ -107,23 +123,29 @@ class GridModel:
     pad: float = 1.5
     corridor_radius: float = 0.0
     corridor_length: float = 0.0
+    link: float = 1.0
 
     def __post_init__(self):
-        check_fields(self, positive=("gap", "keep_open", "resolution", "pad"), integers=("max_cells",),
+        check_fields(self, positive=("gap", "keep_open", "resolution", "pad", "link"), integers=("max_cells",),
                      non_negative=("corridor_radius", "corridor_length"))
 
     def fit(self, points: np.ndarray, mask: np.ndarray, previous: np.ndarray, previous_mask: np.ndarray,
-            goal: np.ndarray) -> Grid:
-        """The grid of the rows of the padded cloud (P, 3) with mask (P,) that did not move since
-        the previous observation (P, 3), (P,) (none at first), around the goal: a position (3,) m
-        or a pose (4, 4) (its approach corridor kept open)."""
-        static = np.asarray(points)[static_rows(np.asarray(points), np.asarray(mask), np.asarray(previous),
-                                                np.asarray(previous_mask))]
+            dt: float, goal: np.ndarray) -> GridFit:
+        """The fit of the padded cloud (P, 3) with mask (P,) given the previous observation (P, 3),
+        (P,) dt seconds earlier (none at first): the grid of the rows that did not move, around the
+        goal (a position (3,) m, or a pose (4, 4) whose approach corridor is kept open), and the
+        polytopes of those that did."""
+        points, mask = np.asarray(points), np.asarray(mask)
+        previous, previous_mask = np.asarray(previous), np.asarray(previous_mask)
+        static = static_rows(points, mask, previous, previous_mask)
+        moved = mask & previous_mask & ~static
+        velocity = cloud_velocity(points, mask, previous, previous_mask, dt)
         goal = np.asarray(goal, np.float64)
         position = goal[:3, 3] if goal.shape == (4, 4) else goal
         ends = [position - self.corridor_length * goal[:3, 2]] if goal.shape == (4, 4) and self.corridor_radius else []
         anchors = np.stack([BASE, *ends, position])
-        return _fit(np.ascontiguousarray(static, np.float64).tobytes(), anchors.tobytes(), bool(ends), self)
+        grid = _fit(np.ascontiguousarray(points[static], np.float64).tobytes(), anchors.tobytes(), bool(ends), self)
+        return GridFit(grid, fit_polytopes(points[moved], self.link, velocity=velocity[moved], bounds=()))
 
 
 def grid_box(points: np.ndarray, anchors: np.ndarray, model: GridModel) -> tuple[np.ndarray, float, tuple]:

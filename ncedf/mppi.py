@@ -231,7 +231,7 @@ def mppi_step(spec: RobotSpec, config, shape, state: MPPIState, arc, goal, point
       shape: a :class:`ncedf.shapes.Shape`.  state: :class:`MPPIState`.
       arc: (M, 3) current arc lengths, m.  goal: (3,) position or (4, 4) pose.
       points: (max_points, 3) obstacle cloud, m; mask: (max_points,) bool, True = real point.
-      model: the fitted obstacle model (``ncedf.convex.Polytopes`` or ``ncedf.grid_model.Grid``), or None.
+      model: the fitted obstacle model (``ncedf.convex.Polytopes`` or ``ncedf.grid_model.GridFit``), or None.
       guide: the guide's field (``ncedf.guide``), or None for the straight goal distance.
     Returns:
       action (M, 3) m/s, the next :class:`MPPIState`, and an :class:`MPPIInfo`.

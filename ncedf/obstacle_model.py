@@ -13,7 +13,8 @@ of the body's clearance to the model, every polytope moved at the mean velocity
 of its points to the state's time.
 
 :class:`ncedf.grid_model.GridModel` closes the static cloud on a voxel grid instead,
-without assuming convexity; :func:`model_clearance` scores a state against either fit.
+without assuming convexity, and the rows seen to move into their clusters' polytopes;
+:func:`model_clearance` scores a state against either fit.
 
 The fit runs in numpy outside the jitted step (a static group of points is
 fitted once and cached), so it is the controller shell's job
@@ -27,8 +28,8 @@ import dataclasses
 import jax.numpy as jnp
 import numpy as np
 
-from ncedf.convex import Polytopes, fit_polytopes, robot_clearance, static_rows
-from ncedf.grid_model import Grid, grid_clearance
+from ncedf.convex import Polytopes, cloud_velocity, fit_polytopes, robot_clearance, static_rows
+from ncedf.grid_model import GridFit, grid_clearance
 from ncedf.validate import check_fields
 
 
@@ -55,30 +56,22 @@ class ConvexModel:
         return fit_polytopes(points[mask], self.link, static[mask], velocity[mask], bounds=(True,))
 
 
-def model_clearance(fitted: Polytopes | Grid, arcs, frames, spec, t=0.0):
+def model_clearance(fitted: Polytopes | GridFit, arcs, frames, spec, t=0.0):
     """(B...,) lower bound of the clearance of the states arcs (B..., M, 3) with frames
-    (B..., M + 1, 4, 4) to a fitted obstacle model (polytopes moved ``t`` s ahead, or a grid), m."""
-    if isinstance(fitted, Grid):
-        clearance = grid_clearance(arcs, frames, spec, fitted)
-        return jnp.broadcast_to(clearance, jnp.broadcast_shapes(clearance.shape, jnp.shape(t)))
+    (B..., M + 1, 4, 4) to a fitted obstacle model (polytopes moved ``t`` s ahead), m."""
+    if isinstance(fitted, GridFit):
+        return jnp.minimum(grid_clearance(arcs, frames, spec, fitted.grid),
+                           robot_clearance(arcs, frames, spec, fitted.moving, t))
     return robot_clearance(arcs, frames, spec, fitted, t)
 
 
-def static_part(fitted: Polytopes | Grid) -> Polytopes | Grid:
-    """The fitted model less what moves: its moving polytopes left out (a grid holds still points only)."""
-    if isinstance(fitted, Grid):
-        return fitted
+def static_part(fitted: Polytopes | GridFit) -> Polytopes | GridFit:
+    """The fitted model less what moves: its moving polytopes left out."""
+    if isinstance(fitted, GridFit):
+        return fitted._replace(moving=static_part(fitted.moving))
     return fitted._replace(present=fitted.present & ~np.any(fitted.velocity != 0, axis=-1))
 
 
-def left_out(fitted: Polytopes | Grid) -> int:
+def left_out(fitted: Polytopes | GridFit) -> int:
     """The still obstacles the fitted model misses: the convex model's clusters left out as not convex."""
-    return 0 if isinstance(fitted, Grid) else int(fitted.left_out)
-
-
-def cloud_velocity(points: np.ndarray, mask: np.ndarray, previous: np.ndarray, previous_mask: np.ndarray,
-                   dt: float) -> np.ndarray:
-    """(P, 3) m/s: each row's displacement since the previous cloud over dt; zero where either
-    cloud has padding (the scenarios observe row ``i`` as the same physical point every step)."""
-    both = (mask & previous_mask)[:, None]
-    return np.where(both, (points - previous) / np.float32(dt), np.float32(0.0)).astype(np.float32)
+    return 0 if isinstance(fitted, GridFit) else int(fitted.left_out)

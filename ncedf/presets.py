@@ -180,7 +180,7 @@ def ours(spec: RobotSpec, observation: Observation) -> ControllerConfig:
         return dataclasses.replace(
             base, mppi=dataclasses.replace(base.mppi, w_coll=SURFACE_W_COLL, w_coll_terminal=SURFACE_W_COLL),
             model=GridModel(max(observation.gap, spec.thickest), spec.thickest,
-                            corridor_radius=CORRIDOR * spec.thickest, corridor_length=spec.length),
+                            corridor_radius=CORRIDOR * spec.thickest, corridor_length=spec.length, link=CONVEX_LINK),
             guide=Guide(spec.thickest),
             temperature=EffectiveSampleSize(OURS_ESS, StallEscape(STALL_STEPS, STALL_ESS)),
             recovery=RouteRecovery(after=STALL_STEPS, route=GRID_ROUTE))

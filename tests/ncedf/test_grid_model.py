@@ -29,7 +29,7 @@ def wall(density: float, window: float, size: float = 6.0, x: float = 3.0, seed:
 
 def fit(points: np.ndarray, goal, gap: float, keep_open: float = 0.2):
     mask = np.ones(len(points), bool)
-    return GridModel(gap, keep_open).fit(points, mask, points, mask, np.asarray(goal, np.float64))
+    return GridModel(gap, keep_open).fit(points, mask, points, mask, 0.05, np.asarray(goal, np.float64)).grid
 
 
 def test_the_grid_distance_is_a_lower_bound_of_the_distance_to_the_points():
@@ -240,11 +240,51 @@ def test_a_pose_goals_way_in_stays_open_where_the_samples_holes_are_as_wide_as_t
     mask = np.ones(len(points), bool)
     model = GridModel(gap, 0.2, corridor_radius=0.4, corridor_length=2.0)
     in_port = jnp.asarray([[x, 0.0, 0.0] for x in (1.5, 2.0, 2.5, 3.0)], jnp.float32)
-    with_pose = model.fit(points, mask, points, mask, pose)
+    with_pose = model.fit(points, mask, points, mask, 0.05, pose).grid
     assert np.all(np.asarray(grid_distance(with_pose, in_port)) >= 0.2 + 0.05)
-    in_front = model.fit(points, mask, points, mask, np.array([2.0, 0.0, 0.0]))
+    in_front = model.fit(points, mask, points, mask, 0.05, np.array([2.0, 0.0, 0.0])).grid
     yz = np.stack(np.meshgrid(np.linspace(-2.3, 2.3, 24), np.linspace(-2.3, 2.3, 24)), -1).reshape(-1, 2)
     beside = yz[np.linalg.norm(yz, axis=1) > 0.4 + 1.0]
     on_wall = jnp.asarray(np.column_stack([np.full(len(beside), 3.0), beside]), jnp.float32)
     np.testing.assert_array_equal(np.asarray(grid_distance(with_pose, on_wall)),
                                   np.asarray(grid_distance(in_front, on_wall)))
+
+
+def test_a_moving_ball_beside_a_wall_is_closed_and_scored_where_it_will_be():
+    # A wall's points stay still, a 0.5 m sphere's 30 points move at v: the grid holds the wall,
+    # the sphere is its ball moved t v ahead, where its 30 points leave caps deep enough for a link.
+    from ncedf.geometry import robot_signed_distance
+    from ncedf.obstacle_model import model_clearance
+    from ncedf.robot import sample_arc_lengths
+
+    rng = np.random.default_rng(11)
+    spec, dt, v = RobotSpec(n_links=4), 0.05, np.array([0.0, 1.0, 0.0])
+    direction = rng.normal(size=(30, 3))
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    centre = np.array([0.6, 0.0, 1.6])
+    before = np.concatenate([wall(5.0, 1.0), centre + 0.5 * direction]).astype(np.float32)
+    now = before.copy()
+    now[-30:] += (v * dt).astype(np.float32)
+    mask, none = np.ones(len(now), bool), np.zeros(len(now), bool)
+    model = GridModel(0.4, 0.2)
+    assert not np.any(model.fit(now, mask, before, none, dt, np.array([4.0, 0.0, 0.0])).moving.present)
+    fitted = model.fit(now, mask, before, mask, dt, np.array([4.0, 0.0, 0.0]))
+    assert int(np.sum(fitted.moving.present)) == 1 and bool(fitted.moving.ball[0])
+    np.testing.assert_allclose(np.asarray(fitted.moving.velocity[0]), v, atol=1e-4)
+
+    arcs = sample_arc_lengths(jax.random.PRNGKey(1), spec, (400, spec.n_links))
+    t = jnp.asarray(rng.uniform(0.0, 1.0, 400), jnp.float32)
+    bound = np.asarray(model_clearance(fitted, arcs, forward_kinematics(arcs, spec), spec, t))
+    dense = rng.normal(size=(4000, 3))
+    dense = 0.5 * dense / np.linalg.norm(dense, axis=1, keepdims=True)
+
+    def clearance(points):  # the body's least signed distance to points (N, 3) at each state's time
+        return np.asarray(jax.vmap(lambda arc, s: jnp.min(robot_signed_distance(points + s * v, arc, spec)))(
+            arcs, t))
+
+    sphere = clearance(jnp.asarray(centre + v * dt + dense, jnp.float32))
+    samples = clearance(jnp.asarray(now[-30:]))
+    near = (sphere > 0.0) & (sphere < 1.0)
+    assert near.sum() > 20
+    assert np.all(bound[near] <= sphere[near] + 1e-3)
+    assert np.max(samples[near] - sphere[near]) > 0.05  # the points alone leave room the ball does not

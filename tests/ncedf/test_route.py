@@ -358,8 +358,8 @@ def test_a_position_goals_route_arrives_along_the_free_path_from_the_base(monkey
     slabs = np.concatenate([np.column_stack([xy, np.full(len(xy), z)]) for z in (2.0, 3.2)]).astype(np.float32)
     goal = np.array([4.5, 0.0, 2.6])
     mask = np.ones(len(slabs), bool)
-    grid = GridModel(0.1, 0.2).fit(slabs, mask, slabs, mask, goal)
-    field = Guide(0.2).fit(grid, goal)
+    grid = GridModel(0.1, 0.2).fit(slabs, mask, slabs, mask, 0.05, goal)
+    field = Guide(0.2).fit(grid.grid, goal)
     asked = []
     monkeypatch.setattr("ncedf.recovery.plan_route", lambda *args, **kwargs: asked.append(args[6]))
     spec = RobotSpec(n_links=5)
