@@ -5,8 +5,11 @@ its cluster's hull, which closes a wall's window too. The grid model closes it
 without assuming convexity:
 
 * cells: a grid of spacing ``h`` over the static points, the goal and the robot's
-  base (the world origin), grown by ``pad``; ``h`` is ``resolution``, coarsened
-  where the box would hold more than ``max_cells``;
+  base (the world origin), grown by ``pad`` and to a multiple of ``GRID_BUCKET``
+  cells; ``h`` is ``resolution``, coarsened where the box would hold more than
+  ``max_cells``. Before any point is known to stand still (the first observation)
+  the grid spans the whole cloud, far from any obstacle, so that the program
+  compiled for it serves the next steps too;
 * closed cells: the cells that hold a point, grown by a radius ``reach`` and
   shrunk again by ``sqrt(reach^2 - gap^2)`` (every cell within ``reach`` of a
   hit cell, less those within the shrink of a cell that is not). Over a hole of
@@ -70,6 +73,9 @@ from ncedf.validate import check_fields
 
 #: Static clouds (with their goals) whose grids are kept.
 GRID_CACHE = 4
+#: Cells per dimension of a grid, a multiple of this (its box grown on the upper side): the jitted step
+#: is compiled for the grid's shape, so grids of like sizes share a program.
+GRID_BUCKET = 16
 #: The field's value without static obstacles, m (finite: the interpolation weighs it by zero).
 FAR = 1e6
 #: The reach at first, and the distance that joins two hit cells into one surface, in gaps.
@@ -101,7 +107,7 @@ class GridFit(NamedTuple):
 @dataclasses.dataclass(frozen=True)
 class GridModel:
     """The grid model (module docstring): holes of radius ``gap`` m closed, cells of
-    ``resolution`` m (at most ``max_cells``) over the cloud, goal and base grown by ``pad`` m.
+    ``resolution`` m (about ``max_cells`` at most) over the cloud, goal and base grown by ``pad`` m.
 
     The reach starts at ``REACH * gap``; where that shuts the goal in (no cell with a field of
     at least ``keep_open`` m leads from the goal's cell to the grid's border) it shrinks by
@@ -144,7 +150,9 @@ class GridModel:
         position = goal[:3, 3] if goal.shape == (4, 4) else goal
         ends = [position - self.corridor_length * goal[:3, 2]] if goal.shape == (4, 4) and self.corridor_radius else []
         anchors = np.stack([BASE, *ends, position])
-        grid = _fit(np.ascontiguousarray(points[static], np.float64).tobytes(), anchors.tobytes(), bool(ends), self)
+        seen = static if static.any() else mask  # at first nothing is known still: far, over the cloud's box
+        grid = _fit(np.ascontiguousarray(points[seen], np.float64).tobytes(), anchors.tobytes(), bool(ends),
+                    not static.any(), self)
         return GridFit(grid, fit_polytopes(points[moved], self.link, velocity=velocity[moved], bounds=()))
 
 
@@ -154,7 +162,8 @@ def grid_box(points: np.ndarray, anchors: np.ndarray, model: GridModel) -> tuple
     lower = both.min(axis=0) - model.pad - REACH * model.gap
     extent = both.max(axis=0) + model.pad + REACH * model.gap - lower
     h = max(model.resolution, float(np.prod(extent) / model.max_cells) ** (1.0 / 3.0))
-    return lower, h, tuple(int(n) for n in np.ceil(extent / h).astype(int) + 1)
+    cells = np.ceil(extent / h).astype(int) + 1
+    return lower, h, tuple(int(n) for n in -(-cells // GRID_BUCKET) * GRID_BUCKET)
 
 
 def border_labels(labels: np.ndarray) -> np.ndarray:
@@ -211,14 +220,16 @@ def goal_open(field: np.ndarray, cell: tuple, room: float) -> bool:
 
 
 @functools.lru_cache(maxsize=GRID_CACHE)
-def _fit(data: bytes, anchors: bytes, corridor: bool, model: GridModel) -> Grid:
+def _fit(data: bytes, anchors: bytes, corridor: bool, empty: bool, model: GridModel) -> Grid:
     """The grid of the points (bytes of (P, 3)) round the anchors (bytes of (N, 3): the base, with a
-    ``corridor`` its far end, and the goal position)."""
+    ``corridor`` its far end, and the goal position); ``empty``: the points set the box only, and the
+    field is far everywhere (no point is known to stand still). On the device (cached: not copied
+    at every step)."""
     points = np.frombuffer(data, np.float64).reshape(-1, 3)
     anchors = np.frombuffer(anchors, np.float64).reshape(-1, 3)
     origin, h, shape = grid_box(points, anchors, model)
-    if len(points) == 0:  # no static obstacle: far everywhere
-        return Grid(origin.astype(np.float32), np.float32(h), np.full((2, 2, 2), FAR, np.float32))
+    if empty or len(points) == 0:
+        return Grid(jnp.asarray(origin, jnp.float32), jnp.float32(h), jnp.full(shape, FAR, jnp.float32))
     cells = np.unique(np.rint((points - origin) / h).astype(int), axis=0)
     hit = np.zeros(shape, bool)
     hit[tuple(cells.T)] = True
@@ -232,7 +243,7 @@ def _fit(data: bytes, anchors: bytes, corridor: bool, model: GridModel) -> Grid:
     while reach > h and not goal_open(field, goal, model.keep_open):
         reach *= SHRINK
         field = signed_field(closed_cells(parts, shape, h, reach, model.gap) & ~way_in, hit, points, origin, h)
-    return Grid(origin.astype(np.float32), np.float32(h), field)
+    return Grid(jnp.asarray(origin, jnp.float32), jnp.float32(h), jnp.asarray(field))
 
 
 def near_segment(shape: tuple, origin: np.ndarray, h: float, ends: np.ndarray, radius: float) -> np.ndarray:

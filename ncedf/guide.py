@@ -53,7 +53,7 @@ class Guide:
         room = np.asarray(grid.values)[::k, ::k, ::k]
         h, origin = float(grid.spacing) * k, np.asarray(grid.origin, np.float64)
         field = path_lengths(room >= self.clearance, h, self.blocked, np.asarray(goal, np.float64) - origin)
-        return Grid(origin.astype(np.float32), np.float32(h), field.astype(np.float32))
+        return Grid(jnp.asarray(origin, jnp.float32), jnp.float32(h), jnp.asarray(field, jnp.float32))
 
 
 def path_lengths(free: np.ndarray, h: float, blocked: float, goal: np.ndarray) -> np.ndarray:

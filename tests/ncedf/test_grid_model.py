@@ -70,6 +70,7 @@ def test_a_free_cell_near_the_points_holds_the_exact_distance_to_the_points_and_
     hit[tuple(np.rint((points - origin) / h).astype(int).T)] = True
     filled = origin + h * np.argwhere((values < 0) & ~hit)
     free = origin + h * np.argwhere(values >= 0)
+    free = free[np.all(np.abs(free) < 2.0 + EXACT_BAND, axis=1)]  # the points' box and the band round it
     free = free[RNG.choice(len(free), 6000, replace=False)]
     to_points = np.min(np.linalg.norm(free[:, None] - points[None], axis=-1), axis=1)
     near = to_points < EXACT_BAND - h
@@ -139,7 +140,12 @@ def test_the_clearance_of_a_robot_is_at_most_its_exact_clearance_to_the_points()
     assert np.all(bound <= truth + 1e-4)
 
 
-def test_ours_steps_with_the_grid_model_and_the_guide():
+def test_ours_steps_with_the_grid_model_and_the_guide_on_the_programs_its_warm_up_compiled():
+    """The first step sees no point still (a far grid over the cloud's box), the second closes the
+    wall: both grids have one shape, so the warm-up's programs serve both steps."""
+    from ncedf import controller as controller_module
+    from ncedf import mppi as mppi_module
+
     spec = RobotSpec(3)
     points = wall(4.0, 1.6)
     config = ours(spec, Observation(len(points), convex=False, gap=sampling_gap(points)))
@@ -147,9 +153,15 @@ def test_ours_steps_with_the_grid_model_and_the_guide():
         **{**vars(config.mppi), "samples": 64, "horizon": 5})})
     controller = Controller(spec, make_shape("spheres", spec), config)
     state = controller.init(jax.random.PRNGKey(0))
-    arc = np.asarray(spec.straight_state(), np.float32)
+    arc, goal = np.asarray(spec.straight_state(), np.float32), np.array([4.0, 0.0, 1.0], np.float32)
+    programs = [mppi_module.mppi_step, controller_module._check_moves]
+    controller.warm_up(state, arc, goal, points)
+    warm = [p._cache_size() for p in programs]
     for _ in range(2):  # the second step sees the points still: the grid closes them
-        action, state, info = controller.step(state, arc, np.array([4.0, 0.0, 1.0], np.float32), points)
+        action, state, info = controller.step(state, arc, goal, points)
+    assert [p._cache_size() for p in programs] == warm
+    fitted, _ = controller.fit_model(state, *controller.pad_points(points), goal)
+    assert float(np.min(np.asarray(fitted.grid.values))) < 0  # the wall closed at the second step
     assert action.shape == (3, 3) and np.all(np.isfinite(np.asarray(action)))
     assert np.isfinite(float(info.predicted_min_distance))
 

@@ -7,7 +7,6 @@ paper robot's scaled exactly.
 """
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 import pytest
 
