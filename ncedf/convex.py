@@ -45,6 +45,10 @@ their surfaces can be closed from the points alone:
   out by up to 0.73 radii at its corners and their hull's faces, chords, cut
   under it by up to the depth of the largest cap between samples (about 0.1 m
   for 30 points on a 0.5 m sphere). Like the polytope, it holds the points' hull.
+  A moving cluster on no one sphere is halved at its median along its longest
+  side (up to ``SPLIT_DEPTH`` times, :func:`sphere_parts`); where every part lies
+  on a sphere (balls touching in a row chain into one cluster) the parts are
+  balls, else the cluster is one polytope.
 
 Distance to a polytope (:func:`polytope_distance`): the larger of the signed
 distance to its box (exact) and of ``n_k . x - b_k`` over its planes; at most
@@ -93,6 +97,8 @@ PLANE_BUCKETS = (0, 2, 4, MAX_PLANES)
 CONVEX_TOLERANCE = 0.01
 #: A cluster whose points all lie within this of their least-squares sphere is that sphere, m.
 SPHERE_TOLERANCE = 0.01
+#: Halvings of a moving cluster that is not on one sphere, in search of parts that each are.
+SPLIT_DEPTH = 2
 #: Groups of points whose clusters' fit :func:`fit_polytopes` keeps (a static group repeats every step).
 FIT_CACHE = 8
 #: Balls per link that cover the robot body for the clearance to the polytopes.
@@ -273,8 +279,29 @@ def _fit_group(data: bytes, link: float, bounds: bool) -> tuple[tuple, ...]:
         if bounds and sphere is None and hull_depth(points[members]) > CONVEX_TOLERANCE:
             fits.append((members, None))
             continue
-        fits.append((members, *fit_polytope(points[members], planes=sphere is None), sphere))
+        parts = None if bounds or sphere is not None else sphere_parts(points[members], SPLIT_DEPTH)
+        for part, ball in parts or [(np.arange(len(members)), sphere)]:
+            fits.append((members[part], *fit_polytope(points[members[part]], planes=ball is None), ball))
     return tuple(fits)
+
+
+def sphere_parts(points: np.ndarray, depth: int) -> list[tuple[np.ndarray, tuple]] | None:
+    """The parts of points (P, 3) that each lie on a sphere (:func:`fit_sphere`): the indices of each
+    part's points and its sphere, halved at the median along the bounding box's longest side up to
+    ``depth`` times; None unless every part lies on one (balls touching in a row, one moving cluster)."""
+    sphere = fit_sphere(points)
+    if sphere is not None:
+        return [(np.arange(len(points)), sphere)]
+    if depth == 0:
+        return None
+    order = np.argsort(points[:, np.argmax(np.ptp(points, axis=0))], kind="stable")
+    out = []
+    for half in (order[: len(points) // 2], order[len(points) // 2:]):
+        parts = sphere_parts(points[half], depth - 1)
+        if parts is None:
+            return None
+        out += [(half[part], ball) for part, ball in parts]
+    return out
 
 
 def fit_polytopes(points: np.ndarray, link: float, groups: np.ndarray | None = None,

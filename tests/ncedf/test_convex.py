@@ -110,6 +110,23 @@ def test_a_sampled_sphere_is_closed_as_its_ball_moving_with_it(dense):
     assert np.max(d_box - truth_now) > 0.02 and np.min(d_box - truth_now) < -0.1  # both wrong ways, by far
 
 
+def test_touching_spheres_in_one_moving_cluster_are_each_a_ball():
+    # Four 0.5 m spheres stacked, touching (the charging port's rows), 30 points each: single linkage
+    # joins them into one cluster on no one sphere; its halves, and theirs, each lie on one.
+    rng = np.random.default_rng(8)
+    centres = np.array([[3.0, -4.0, z] for z in (3.5, 2.5, 1.5, 0.5)])
+    points = np.concatenate([_sphere_surface(rng, c, 0.5, 30) for c in centres])
+    v = np.tile([0.0, 1.0, 0.0], (len(points), 1))
+    assert len(np.unique(clusters(points, 1.0, bounds=False))) == 1
+    poly = fit_polytopes(points, 1.0, velocity=v, bounds=())
+    assert int(np.sum(poly.present)) == 4 and bool(np.all(np.asarray(poly.ball)[np.asarray(poly.present)]))
+    found = np.asarray(poly.centre)[np.asarray(poly.present)]
+    np.testing.assert_allclose(found[np.argsort(-found[:, 2])], centres, atol=1e-4)
+    box = _box_surface(rng, (0.0, 0.0, 2.0), (1.0, 1.0, 4.0), 8.0)  # a moving column: no part on a sphere
+    column = fit_polytopes(box, 1.0, velocity=np.tile([0.0, 1.0, 0.0], (len(box), 1)), bounds=())
+    assert int(np.sum(column.present)) == 1 and not bool(column.ball[0])
+
+
 def test_only_clusters_on_a_sphere_are_balls():
     rng = np.random.default_rng(6)
     points = _sphere_surface(rng, (1.0, -2.0, 0.5), 0.7, 12)
