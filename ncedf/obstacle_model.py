@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -60,8 +61,12 @@ def model_clearance(fitted: Polytopes | GridFit, arcs, frames, spec, t=0.0):
     """(B...,) lower bound of the clearance of the states arcs (B..., M, 3) with frames
     (B..., M + 1, 4, 4) to a fitted obstacle model (polytopes moved ``t`` s ahead), m."""
     if isinstance(fitted, GridFit):
-        return jnp.minimum(grid_clearance(arcs, frames, spec, fitted.grid),
-                           robot_clearance(arcs, frames, spec, fitted.moving, t))
+        still = grid_clearance(arcs, frames, spec, fitted.grid)
+        shape = jnp.broadcast_shapes(still.shape, jnp.shape(t))
+        moving = jax.lax.cond(jnp.any(fitted.moving.present),  # skipped where nothing moves
+                              lambda: jnp.broadcast_to(robot_clearance(arcs, frames, spec, fitted.moving, t), shape),
+                              lambda: jnp.full(shape, jnp.inf, still.dtype))
+        return jnp.minimum(still, moving)
     return robot_clearance(arcs, frames, spec, fitted, t)
 
 
