@@ -5,11 +5,10 @@ its cluster's hull, which closes a wall's window too. The grid model closes it
 without assuming convexity:
 
 * cells: a grid of spacing ``h`` over the static points, the goal and the robot's
-  base (the world origin), grown by ``pad`` and to a multiple of ``GRID_BUCKET``
-  cells; ``h`` is ``resolution``, coarsened where the box would hold more than
-  ``max_cells``. Before any point is known to stand still (the first observation)
-  the grid spans the whole cloud, far from any obstacle, so that the program
-  compiled for it serves the next steps too;
+  base (the world origin), grown by ``pad``; ``h`` is ``resolution``, coarsened
+  where the box would hold more than ``max_cells``. Every grid's values are
+  padded to ``max_cells`` (:class:`Grid`), so one compiled program serves grids
+  of every box (a new shape would compile the controller's step again);
 * closed cells: the cells that hold a point, grown by a radius ``reach`` and
   shrunk again by ``sqrt(reach^2 - gap^2)`` (every cell within ``reach`` of a
   hit cell, less those within the shrink of a cell that is not). Over a hole of
@@ -73,9 +72,6 @@ from ncedf.validate import check_fields
 
 #: Static clouds (with their goals) whose grids are kept.
 GRID_CACHE = 4
-#: Cells per dimension of a grid, a multiple of this (its box grown on the upper side): the jitted step
-#: is compiled for the grid's shape, so grids of like sizes share a program.
-GRID_BUCKET = 16
 #: The field's value without static obstacles, m (finite: the interpolation weighs it by zero).
 FAR = 1e6
 #: The reach at first, and the distance that joins two hit cells into one surface, in gaps.
@@ -88,12 +84,29 @@ EXACT_BAND = 1.0
 
 
 class Grid(NamedTuple):
-    """A field on a grid (a pytree): ``values`` (X, Y, Z) at the cell centres ``origin + h * index``,
-    m; ``spacing`` h, m (a scalar array)."""
+    """A field on a grid (a pytree): at the cell centres ``origin + h * index``, m, the values of
+    ``shape`` (3,) int cells (X, Y, Z), flattened (C-order) and padded to a fixed length C >= X Y Z
+    (``values`` (C,)), so that grids of other shapes share one compiled program; ``spacing`` h, m
+    (a scalar array)."""
 
     origin: jnp.ndarray
     spacing: jnp.ndarray
     values: jnp.ndarray
+    shape: jnp.ndarray
+
+    def array(self) -> np.ndarray:
+        """(X, Y, Z) the values on the host."""
+        shape = tuple(int(n) for n in np.asarray(self.shape))
+        return np.asarray(self.values)[: int(np.prod(shape))].reshape(shape)
+
+
+def padded(origin: np.ndarray, h: float, field: np.ndarray, length: int) -> Grid:
+    """The :class:`Grid` of the field (X, Y, Z) at ``origin`` (3,) with spacing h, its values padded to
+    ``length`` (at least X Y Z), on the device."""
+    values = np.full(max(length, field.size), FAR, np.float32)
+    values[: field.size] = field.ravel()
+    return Grid(jnp.asarray(origin, jnp.float32), jnp.float32(h), jnp.asarray(values),
+                jnp.asarray(field.shape, jnp.int32))
 
 
 class GridFit(NamedTuple):
@@ -107,7 +120,7 @@ class GridFit(NamedTuple):
 @dataclasses.dataclass(frozen=True)
 class GridModel:
     """The grid model (module docstring): holes of radius ``gap`` m closed, cells of
-    ``resolution`` m (about ``max_cells`` at most) over the cloud, goal and base grown by ``pad`` m.
+    ``resolution`` m (at most ``max_cells``) over the cloud, goal and base grown by ``pad`` m.
 
     The reach starts at ``REACH * gap``; where that shuts the goal in (no cell with a field of
     at least ``keep_open`` m leads from the goal's cell to the grid's border) it shrinks by
@@ -150,9 +163,7 @@ class GridModel:
         position = goal[:3, 3] if goal.shape == (4, 4) else goal
         ends = [position - self.corridor_length * goal[:3, 2]] if goal.shape == (4, 4) and self.corridor_radius else []
         anchors = np.stack([BASE, *ends, position])
-        seen = static if static.any() else mask  # at first nothing is known still: far, over the cloud's box
-        grid = _fit(np.ascontiguousarray(points[seen], np.float64).tobytes(), anchors.tobytes(), bool(ends),
-                    not static.any(), self)
+        grid = _fit(np.ascontiguousarray(points[static], np.float64).tobytes(), anchors.tobytes(), bool(ends), self)
         return GridFit(grid, fit_polytopes(points[moved], self.link, velocity=velocity[moved], bounds=()))
 
 
@@ -162,8 +173,9 @@ def grid_box(points: np.ndarray, anchors: np.ndarray, model: GridModel) -> tuple
     lower = both.min(axis=0) - model.pad - REACH * model.gap
     extent = both.max(axis=0) + model.pad + REACH * model.gap - lower
     h = max(model.resolution, float(np.prod(extent) / model.max_cells) ** (1.0 / 3.0))
-    cells = np.ceil(extent / h).astype(int) + 1
-    return lower, h, tuple(int(n) for n in -(-cells // GRID_BUCKET) * GRID_BUCKET)
+    while np.prod(np.ceil(extent / h) + 1) > model.max_cells:  # the cells' rounding up
+        h *= 1.01
+    return lower, h, tuple(int(n) for n in np.ceil(extent / h).astype(int) + 1)
 
 
 def border_labels(labels: np.ndarray) -> np.ndarray:
@@ -220,16 +232,14 @@ def goal_open(field: np.ndarray, cell: tuple, room: float) -> bool:
 
 
 @functools.lru_cache(maxsize=GRID_CACHE)
-def _fit(data: bytes, anchors: bytes, corridor: bool, empty: bool, model: GridModel) -> Grid:
+def _fit(data: bytes, anchors: bytes, corridor: bool, model: GridModel) -> Grid:
     """The grid of the points (bytes of (P, 3)) round the anchors (bytes of (N, 3): the base, with a
-    ``corridor`` its far end, and the goal position); ``empty``: the points set the box only, and the
-    field is far everywhere (no point is known to stand still). On the device (cached: not copied
-    at every step)."""
+    ``corridor`` its far end, and the goal position), on the device (cached: not copied each step)."""
     points = np.frombuffer(data, np.float64).reshape(-1, 3)
     anchors = np.frombuffer(anchors, np.float64).reshape(-1, 3)
     origin, h, shape = grid_box(points, anchors, model)
-    if empty or len(points) == 0:
-        return Grid(jnp.asarray(origin, jnp.float32), jnp.float32(h), jnp.full(shape, FAR, jnp.float32))
+    if len(points) == 0:  # no static obstacle: far everywhere
+        return padded(origin, h, np.full((2, 2, 2), FAR, np.float32), model.max_cells)
     cells = np.unique(np.rint((points - origin) / h).astype(int), axis=0)
     hit = np.zeros(shape, bool)
     hit[tuple(cells.T)] = True
@@ -243,7 +253,7 @@ def _fit(data: bytes, anchors: bytes, corridor: bool, empty: bool, model: GridMo
     while reach > h and not goal_open(field, goal, model.keep_open):
         reach *= SHRINK
         field = signed_field(closed_cells(parts, shape, h, reach, model.gap) & ~way_in, hit, points, origin, h)
-    return Grid(jnp.asarray(origin, jnp.float32), jnp.float32(h), jnp.asarray(field))
+    return padded(origin, h, field, model.max_cells)
 
 
 def near_segment(shape: tuple, origin: np.ndarray, h: float, ends: np.ndarray, radius: float) -> np.ndarray:
@@ -264,24 +274,29 @@ def near_segment(shape: tuple, origin: np.ndarray, h: float, ends: np.ndarray, r
 def corners(grid: Grid, x: jnp.ndarray) -> tuple[jnp.ndarray, jnp.ndarray]:
     """The eight cells around each point x (..., 3) clamped into the grid: their values (..., 8)
     and trilinear weights (..., 8)."""
-    size = jnp.asarray(grid.values.shape)
+    size = grid.shape.astype(x.dtype)
     u = jnp.clip((x - grid.origin) / grid.spacing, 0.0, size - 1.0)
     low = jnp.clip(jnp.floor(u), 0, size - 2).astype(jnp.int32)
     frac = u - low
     bits = jnp.asarray([[i >> 2 & 1, i >> 1 & 1, i & 1] for i in range(8)], jnp.int32)  # (8, 3)
-    index = low[..., None, :] + bits
     weights = jnp.prod(jnp.where(bits == 1, frac[..., None, :], 1.0 - frac[..., None, :]), axis=-1)
-    return grid.values[index[..., 0], index[..., 1], index[..., 2]], weights
+    return at_cells(grid, low[..., None, :] + bits), weights
+
+
+def at_cells(grid: Grid, cells: jnp.ndarray) -> jnp.ndarray:
+    """(...,) the grid's values at the cells (..., 3) int, each within the grid's shape."""
+    strides = jnp.stack([grid.shape[1] * grid.shape[2], grid.shape[2], jnp.ones((), jnp.int32)])
+    return grid.values[jnp.sum(cells * strides, axis=-1)]
 
 
 def grid_distance(grid: Grid, x: jnp.ndarray) -> jnp.ndarray:
     """(...,) lower bound of the distance from points x (..., 3) to the observed static points, m
     (module docstring; negative inside the closed surfaces)."""
-    size = jnp.asarray(grid.values.shape)
-    q = jnp.clip(x, grid.origin, grid.origin + grid.spacing * (size - 1).astype(x.dtype))  # the box's nearest point
+    size = grid.shape.astype(x.dtype)
+    q = jnp.clip(x, grid.origin, grid.origin + grid.spacing * (size - 1))  # the box's nearest point
     cell = jnp.clip(jnp.rint((q - grid.origin) / grid.spacing), 0, size - 1).astype(jnp.int32)
     centre = grid.origin + grid.spacing * cell.astype(x.dtype)
-    at_q = grid.values[cell[..., 0], cell[..., 1], cell[..., 2]] - jnp.sqrt(jnp.sum((q - centre) ** 2, axis=-1))
+    at_q = at_cells(grid, cell) - jnp.sqrt(jnp.sum((q - centre) ** 2, axis=-1))
     out = jnp.sum((x - q) ** 2, axis=-1)
     return jnp.where(out > 0, jnp.sqrt(out + jnp.maximum(at_q, 0.0) ** 2), at_q)
 

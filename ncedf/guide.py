@@ -28,7 +28,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
-from ncedf.grid_model import Grid, corners
+from ncedf.grid_model import Grid, corners, padded
 from ncedf.validate import check_fields
 
 #: The 13 neighbour offsets of a cell that, with their opposites, make its 26.
@@ -50,10 +50,10 @@ class Guide:
     def fit(self, grid: Grid, goal) -> Grid:
         """The guided distance to the goal position (3,) m on the model's ``grid``, m."""
         k = self.coarsen
-        room = np.asarray(grid.values)[::k, ::k, ::k]
+        room = grid.array()[::k, ::k, ::k]
         h, origin = float(grid.spacing) * k, np.asarray(grid.origin, np.float64)
         field = path_lengths(room >= self.clearance, h, self.blocked, np.asarray(goal, np.float64) - origin)
-        return Grid(jnp.asarray(origin, jnp.float32), jnp.float32(h), jnp.asarray(field, jnp.float32))
+        return padded(origin, h, field.astype(np.float32), int(grid.values.size))
 
 
 def path_lengths(free: np.ndarray, h: float, blocked: float, goal: np.ndarray) -> np.ndarray:
@@ -81,16 +81,15 @@ def guided_distance(field: Grid, x: jnp.ndarray) -> jnp.ndarray:
     """(...,) the guided distance of points x (..., 3) to the goal, m: the field's trilinear
     interpolation at x clamped into the grid, plus the distance from x to that point."""
     values, weights = corners(field, x)
-    size = jnp.asarray(field.values.shape)
-    inside = jnp.clip(x, field.origin, field.origin + field.spacing * (size - 1))
+    inside = jnp.clip(x, field.origin, field.origin + field.spacing * (field.shape - 1).astype(x.dtype))
     return jnp.sum(weights * values, axis=-1) + jnp.sqrt(jnp.sum((x - inside) ** 2, axis=-1))
 
 
 def descent(field: Grid, start) -> np.ndarray:
     """(K, 3) the centres of the cells from the one nearest ``start`` (3,) m, each the neighbour
     (of 26) of least value, until none is lower: the guided path towards the goal, m."""
-    values, h = np.asarray(field.values), float(field.spacing)
-    origin, shape = np.asarray(field.origin, np.float64), np.asarray(field.values.shape)
+    values, h = field.array(), float(field.spacing)
+    origin, shape = np.asarray(field.origin, np.float64), np.asarray(values.shape)
     cell = np.clip(np.rint((np.asarray(start, np.float64) - origin) / h).astype(int), 0, shape - 1)
     steps = np.concatenate([OFFSETS, -OFFSETS])
     path = [cell]
@@ -108,7 +107,7 @@ def approach(field: Grid, start, goal, back: float) -> np.ndarray | None:
     the field's descent direction (minus its gradient, central differences) at the path's last cell
     at least ``back`` m from the goal by the field (the start's where none is); None where it is flat."""
     path = descent(field, start)
-    values, h = np.asarray(field.values, np.float64), float(field.spacing)
+    values, h = field.array().astype(np.float64), float(field.spacing)
     cells = np.rint((path - np.asarray(field.origin)) / h).astype(int)
     far = values[tuple(cells.T)] >= back
     cell = cells[np.flatnonzero(far)[-1]] if far.any() else cells[0]

@@ -52,7 +52,7 @@ def test_above_the_grid_the_bound_holds_and_is_at_least_the_height_above_it():
     inside the slab."""
     points = np.concatenate([RNG.uniform([1.0, -1.0, 0.0], [3.0, 1.0, 0.5], (400, 3))]).astype(np.float32)
     grid = fit(points, (2.0, 0.0, 1.5), gap=0.3)
-    top = float(grid.origin[2] + grid.spacing * (grid.values.shape[2] - 1))
+    top = float(grid.origin[2] + grid.spacing * (grid.array().shape[2] - 1))
     queries = RNG.uniform([-4.0, -4.0, top], [8.0, 4.0, top + 10.0], (3000, 3)).astype(np.float32)
     truth = np.min(np.linalg.norm(queries[:, None] - points[None], axis=-1), axis=1)
     bound = np.asarray(grid_distance(grid, jnp.asarray(queries)))
@@ -65,7 +65,7 @@ def test_a_free_cell_near_the_points_holds_the_exact_distance_to_the_points_and_
     force) and the centres of the closed cells that hold no point (closed cells have negative values)."""
     points = RNG.uniform(-2.0, 2.0, (300, 3)).astype(np.float32)
     grid = fit(points, (0.0, 0.0, 3.0), gap=0.3)
-    values, h, origin = np.asarray(grid.values), float(grid.spacing), np.asarray(grid.origin, np.float64)
+    values, h, origin = grid.array(), float(grid.spacing), np.asarray(grid.origin, np.float64)
     hit = np.zeros(values.shape, bool)
     hit[tuple(np.rint((points - origin) / h).astype(int).T)] = True
     filled = origin + h * np.argwhere((values < 0) & ~hit)
@@ -161,7 +161,7 @@ def test_ours_steps_with_the_grid_model_and_the_guide_on_the_programs_its_warm_u
         action, state, info = controller.step(state, arc, goal, points)
     assert [p._cache_size() for p in programs] == warm
     fitted, _ = controller.fit_model(state, *controller.pad_points(points), goal)
-    assert float(np.min(np.asarray(fitted.grid.values))) < 0  # the wall closed at the second step
+    assert float(np.min(fitted.grid.array())) < 0  # the wall closed at the second step
     assert action.shape == (3, 3) and np.all(np.isfinite(np.asarray(action)))
     assert np.isfinite(float(info.predicted_min_distance))
 
@@ -185,7 +185,7 @@ def test_an_opening_of_the_robots_diameter_and_a_margin_stays_open_in_a_closed_w
     on_wall = jnp.asarray(np.column_stack([np.full(len(solid), 3.0), solid]), jnp.float32)
     assert np.all(np.asarray(grid_distance(grid, on_wall)) < 0.2)
     centre = tuple(np.rint((np.array([3.0, 0.0, 0.0]) - grid.origin) / grid.spacing).astype(int))
-    assert grid.values[centre] >= 0.2
+    assert grid.array()[centre] >= 0.2
     field = Guide(0.2).fit(grid, goal)
     assert 2.0 <= float(guided_distance(field, jnp.asarray(start, jnp.float32))) < 2.0 * 1.15
 

@@ -311,12 +311,12 @@ def test_warm_up_compiles_the_routes_programs_so_a_plan_compiles_nothing(cloud):
 def test_the_approach_is_the_guided_paths_last_direction():
     """A field that is the straight distance to the goal: its descent runs straight to the goal, so
     the approach is the direction from the start, within the 26 neighbours' steps."""
-    from ncedf.grid_model import Grid
+    from ncedf.grid_model import padded
     from ncedf.guide import approach, descent
 
     h, goal = 0.1, np.array([2.0, 1.0, 1.5])
     centres = np.stack(np.meshgrid(*[np.arange(0, 26) * h] * 3, indexing="ij"), axis=-1)
-    field = Grid(np.zeros(3, np.float32), np.float32(h), np.linalg.norm(centres - goal, axis=-1).astype(np.float32))
+    field = padded(np.zeros(3), h, np.linalg.norm(centres - goal, axis=-1).astype(np.float32), 26**3)
     for way in ([1.0, 0.0, 0.0], [1.0, 1.0, 1.0], [0.0, -1.0, 1.0]):  # lattice directions: straight descents
         expected = np.asarray(way) / np.linalg.norm(way)
         start = goal - 1.5 * expected
