@@ -280,24 +280,25 @@ def corners(grid: Grid, x: jnp.ndarray) -> tuple[jnp.ndarray, jnp.ndarray]:
     frac = u - low
     bits = jnp.asarray([[i >> 2 & 1, i >> 1 & 1, i & 1] for i in range(8)], jnp.int32)  # (8, 3)
     weights = jnp.prod(jnp.where(bits == 1, frac[..., None, :], 1.0 - frac[..., None, :]), axis=-1)
-    return at_cells(grid, low[..., None, :] + bits), weights
+    index = low[..., None, :] + bits
+    return at_cells(grid, index[..., 0], index[..., 1], index[..., 2]), weights
 
 
-def at_cells(grid: Grid, cells: jnp.ndarray) -> jnp.ndarray:
-    """(...,) the grid's values at the cells (..., 3) int, each within the grid's shape."""
-    strides = jnp.stack([grid.shape[1] * grid.shape[2], grid.shape[2], jnp.ones((), jnp.int32)])
-    return grid.values[jnp.sum(cells * strides, axis=-1)]
+def at_cells(grid: Grid, i: jnp.ndarray, j: jnp.ndarray, k: jnp.ndarray) -> jnp.ndarray:
+    """(...,) the grid's values at the cells of indices i, j, k (...,) int, each within its shape."""
+    return grid.values[(i * grid.shape[1] + j) * grid.shape[2] + k]
 
 
 def grid_distance(grid: Grid, x: jnp.ndarray) -> jnp.ndarray:
     """(...,) lower bound of the distance from points x (..., 3) to the observed static points, m
     (module docstring; negative inside the closed surfaces)."""
-    size = grid.shape.astype(x.dtype)
-    q = jnp.clip(x, grid.origin, grid.origin + grid.spacing * (size - 1))  # the box's nearest point
-    cell = jnp.clip(jnp.rint((q - grid.origin) / grid.spacing), 0, size - 1).astype(jnp.int32)
-    centre = grid.origin + grid.spacing * cell.astype(x.dtype)
-    at_q = at_cells(grid, cell) - jnp.sqrt(jnp.sum((q - centre) ** 2, axis=-1))
-    out = jnp.sum((x - q) ** 2, axis=-1)
+    x = jnp.moveaxis(x, -1, 0)  # one array per coordinate: several times faster on a CPU than (..., 3)
+    origin, h, size = grid.origin, grid.spacing, grid.shape.astype(x.dtype)
+    q = [jnp.clip(x[a], origin[a], origin[a] + h * (size[a] - 1)) for a in range(3)]  # the box's nearest point
+    cell = [jnp.clip(jnp.rint((q[a] - origin[a]) / h), 0, size[a] - 1) for a in range(3)]
+    to_centre = sum((q[a] - origin[a] - h * cell[a]) ** 2 for a in range(3))
+    at_q = at_cells(grid, *[c.astype(jnp.int32) for c in cell]) - jnp.sqrt(to_centre)
+    out = sum((x[a] - q[a]) ** 2 for a in range(3))
     return jnp.where(out > 0, jnp.sqrt(out + jnp.maximum(at_q, 0.0) ** 2), at_q)
 
 
