@@ -97,6 +97,8 @@ PLANE_BUCKETS = (0, 2, 4, MAX_PLANES)
 CONVEX_TOLERANCE = 0.01
 #: A cluster whose points all lie within this of their least-squares sphere is that sphere, m.
 SPHERE_TOLERANCE = 0.01
+#: The fewest points that tell a sphere (any four lie on one).
+SPHERE_MIN_POINTS = 5
 #: Halvings of a moving cluster that is not on one sphere, in search of parts that each are.
 SPLIT_DEPTH = 2
 #: Groups of points whose clusters' fit :func:`fit_polytopes` keeps (a static group repeats every step).
@@ -220,7 +222,7 @@ def fit_sphere(points: np.ndarray) -> tuple[np.ndarray, float] | None:
     of that sphere and its ball is smaller than the points' bounding box (which rules out
     near-planar points)."""
     points = np.asarray(points, np.float64)
-    if len(points) < 5:  # any four points lie on a sphere
+    if len(points) < SPHERE_MIN_POINTS:
         return None
     design = np.concatenate([2.0 * points, np.ones((len(points), 1))], axis=1)
     solution, _, rank, _ = np.linalg.lstsq(design, np.sum(points**2, axis=1), rcond=None)
@@ -292,7 +294,7 @@ def sphere_parts(points: np.ndarray, depth: int) -> list[tuple[np.ndarray, tuple
     sphere = fit_sphere(points)
     if sphere is not None:
         return [(np.arange(len(points)), sphere)]
-    if depth == 0:
+    if depth == 0 or len(points) < 2 * SPHERE_MIN_POINTS:  # halves too small to tell a sphere
         return None
     order = np.argsort(points[:, np.argmax(np.ptp(points, axis=0))], kind="stable")
     out = []

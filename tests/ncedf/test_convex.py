@@ -125,6 +125,9 @@ def test_touching_spheres_in_one_moving_cluster_are_each_a_ball():
     box = _box_surface(rng, (0.0, 0.0, 2.0), (1.0, 1.0, 4.0), 8.0)  # a moving column: no part on a sphere
     column = fit_polytopes(box, 1.0, velocity=np.tile([0.0, 1.0, 0.0], (len(box), 1)), bounds=())
     assert int(np.sum(column.present)) == 1 and not bool(column.ball[0])
+    for few in ([0], [0, 30, 60], [0, 1, 2, 30, 31, 60, 61]):  # on no one sphere, too few to halve
+        lone = fit_polytopes(points[few], 1.0, velocity=v[few], bounds=())
+        assert int(np.sum(lone.present)) == 1 and not bool(lone.ball[0])
 
 
 def test_only_clusters_on_a_sphere_are_balls():

@@ -253,12 +253,13 @@ def test_ours_models_what_it_observes_whatever_the_world(tmp_path):
     # The charging wall with its port is not convex: the convex model would close the port, so ours
     # closes the wall on a grid that keeps a way to the port open: the robot's radius of room from the
     # port's centre out to the grid's border.
-    grid, scene = _model_after_two_observations(EpisodeSettings("charging", 4, 0, shape="exact"))
+    fitted, scene = _model_after_two_observations(EpisodeSettings("charging", 4, 0, shape="exact"))
+    grid = fitted.grid
     dt = scene.config.mppi.dt
     seen = observe(scene.observer.observe(0.0), scene.observer.observe(dt), dt)
     assert not seen.convex and isinstance(scene.config.model, GridModel)
     cell = tuple(np.rint((scene.goal[:3, 3] - grid.origin) / grid.spacing).astype(int))
-    assert goal_open(np.asarray(grid.values), cell, scene.spec.radius)
+    assert goal_open(grid.array(), cell, scene.spec.radius)
     # Balls observed by their centres: no model, the racing stages.
     balls, scene = _model_after_two_observations(EpisodeSettings("spheres", 4, 0, shape="exact"))
     assert balls is None and scene.config.safety.sweep_first
