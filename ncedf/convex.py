@@ -139,12 +139,17 @@ def static_rows(points: np.ndarray, mask: np.ndarray, previous: np.ndarray, prev
     return mask & previous_mask & np.all(points == previous, axis=-1)
 
 
-def cloud_velocity(points: np.ndarray, mask: np.ndarray, previous: np.ndarray, previous_mask: np.ndarray,
-                   dt: float) -> np.ndarray:
-    """(P, 3) m/s: each row's displacement since the previous cloud over dt; zero where either
-    cloud has padding (the scenarios observe row ``i`` as the same physical point every step)."""
+def observed_motion(points: np.ndarray, mask: np.ndarray, previous: np.ndarray, previous_mask: np.ndarray,
+                    dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """The rows of the padded cloud (P, 3) with mask (P,) that stood still since the previous one
+    (P, 3), (P,) dt seconds earlier (:func:`static_rows`), and each row's velocity (P, 3) m/s: its
+    displacement over dt, zero where either cloud has padding (the scenarios observe row ``i`` as the
+    same physical point every step)."""
+    points, mask = np.asarray(points), np.asarray(mask)
+    previous, previous_mask = np.asarray(previous), np.asarray(previous_mask)
     both = (mask & previous_mask)[:, None]
-    return np.where(both, (points - previous) / np.float32(dt), np.float32(0.0)).astype(np.float32)
+    velocity = np.where(both, (points - previous) / np.float32(dt), np.float32(0.0)).astype(np.float32)
+    return static_rows(points, mask, previous, previous_mask), velocity
 
 
 def _components(n: int, pairs: np.ndarray) -> np.ndarray:

@@ -65,7 +65,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from ncedf.convex import COVER_SPHERES, Polytopes, cloud_velocity, fit_polytopes, static_rows
+from ncedf.convex import COVER_SPHERES, Polytopes, fit_polytopes, observed_motion
 from ncedf.robot import BASE, RobotSpec
 from ncedf.shapes import SphereShape
 from ncedf.validate import check_fields
@@ -155,10 +155,8 @@ class GridModel:
         goal (a position (3,) m, or a pose (4, 4) whose approach corridor is kept open), and the
         polytopes of those that did."""
         points, mask = np.asarray(points), np.asarray(mask)
-        previous, previous_mask = np.asarray(previous), np.asarray(previous_mask)
-        static = static_rows(points, mask, previous, previous_mask)
-        moved = mask & previous_mask & ~static
-        velocity = cloud_velocity(points, mask, previous, previous_mask, dt)
+        static, velocity = observed_motion(points, mask, previous, previous_mask, dt)
+        moved = mask & np.asarray(previous_mask) & ~static
         goal = np.asarray(goal, np.float64)
         position = goal[:3, 3] if goal.shape == (4, 4) else goal
         ends = [position - self.corridor_length * goal[:3, 2]] if goal.shape == (4, 4) and self.corridor_radius else []

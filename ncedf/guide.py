@@ -53,7 +53,7 @@ class Guide:
         room = grid.array()[::k, ::k, ::k]
         h, origin = float(grid.spacing) * k, np.asarray(grid.origin, np.float64)
         field = path_lengths(room >= self.clearance, h, self.blocked, np.asarray(goal, np.float64) - origin)
-        return padded(origin, h, field.astype(np.float32), int(grid.values.size))
+        return padded(origin, h, field, int(grid.values.size))
 
 
 def path_lengths(free: np.ndarray, h: float, blocked: float, goal: np.ndarray) -> np.ndarray:

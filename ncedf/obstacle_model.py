@@ -29,7 +29,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ncedf.convex import Polytopes, cloud_velocity, fit_polytopes, robot_clearance, static_rows
+from ncedf.convex import Polytopes, fit_polytopes, observed_motion, robot_clearance
 from ncedf.grid_model import GridFit, grid_clearance
 from ncedf.validate import check_fields
 
@@ -51,9 +51,7 @@ class ConvexModel:
         earlier. Only the static rows' clusters merge by their bounding boxes (distinct moving
         obstacles would chain together through the boxes of the clusters between them)."""
         points, mask = np.asarray(points), np.asarray(mask)
-        previous, previous_mask = np.asarray(previous), np.asarray(previous_mask)
-        static = static_rows(points, mask, previous, previous_mask)
-        velocity = cloud_velocity(points, mask, previous, previous_mask, dt)
+        static, velocity = observed_motion(points, mask, previous, previous_mask, dt)
         return fit_polytopes(points[mask], self.link, static[mask], velocity[mask], bounds=(True,))
 
 
