@@ -38,7 +38,7 @@ negative. Outside the box, every observed point and cell centre o lies in the bo
 a convex set of which q is the projection of x, so ``(x - q) . (o - q) <= 0`` and ``|x - o|^2 >= |x - q|^2 +
 |q - o|^2 >= |x - q|^2 + max(b, 0)^2``. (Bounding outside by ``f(c) - |x - c|`` alone
 made a link above a low obstacle's grid look deep inside it.) The robot's clearance
-(:func:`grid_clearance`) is that at the centres of the balls that cover each link
+(:func:`fit_clearance`) is that at the centres of the balls that cover each link
 (``ncedf.convex.COVER_SPHERES``), less their radii.
 
 The rows of the cloud seen to move (observed in both of two successive clouds, at
@@ -65,7 +65,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from ncedf.convex import COVER_SPHERES, Polytopes, fit_polytopes, observed_motion
+from ncedf.convex import COVER_SPHERES, Polytopes, fit_polytopes, observed_motion, polytope_distance
 from ncedf.robot import BASE, RobotSpec
 from ncedf.shapes import SphereShape
 from ncedf.validate import check_fields
@@ -300,13 +300,18 @@ def grid_distance(grid: Grid, x: jnp.ndarray) -> jnp.ndarray:
     return jnp.where(out > 0, jnp.sqrt(out + jnp.maximum(at_q, 0.0) ** 2), at_q)
 
 
-def grid_clearance(arcs: jnp.ndarray, frames: jnp.ndarray, spec: RobotSpec, grid: Grid) -> jnp.ndarray:
+def fit_clearance(arcs: jnp.ndarray, frames: jnp.ndarray, spec: RobotSpec, fit: GridFit, t=0.0) -> jnp.ndarray:
     """(B...,) lower bound of the clearance of the bodies (arcs (B..., M, 3), their frames
-    (B..., M + 1, 4, 4)) to the static points, m: the least over the cover balls."""
+    (B..., M + 1, 4, 4)) to the fit, its moving polytopes moved ``t`` s ahead (B... the broadcast of
+    the batch shapes of arcs and t), m: the least over the cover balls, whose centres serve the grid
+    and the polytopes both (the polytopes skipped where none is present)."""
     cover = SphereShape(spec, per_link=COVER_SPHERES)
-    batch = arcs.shape[:-2]
-    flat_arcs, flat_frames = arcs.reshape((-1,) + arcs.shape[-2:]), frames.reshape((-1,) + frames.shape[-3:])
-    geom = jax.vmap(cover.prepare)(flat_arcs, flat_frames)
-    d = grid_distance(grid, geom.centres) - geom.radius[..., None]  # (B, M, n)
-    return jnp.min(d, axis=(-2, -1)).reshape(batch)
-
+    batch = jnp.broadcast_shapes(arcs.shape[:-2], jnp.shape(t))
+    flat_arcs = jnp.broadcast_to(arcs, batch + arcs.shape[-2:]).reshape((-1,) + arcs.shape[-2:])
+    flat_frames = jnp.broadcast_to(frames, batch + frames.shape[-3:]).reshape((-1,) + frames.shape[-3:])
+    time = jnp.broadcast_to(jnp.asarray(t, arcs.dtype), batch).reshape(-1, 1, 1)
+    geom = jax.vmap(cover.prepare)(flat_arcs, flat_frames)  # centres (B, M, n, 3), radius (B, M)
+    still = grid_distance(fit.grid, geom.centres)  # (B, M, n)
+    d = jax.lax.cond(jnp.any(fit.moving.present),
+                     lambda: jnp.minimum(still, polytope_distance(geom.centres, fit.moving, time)), lambda: still)
+    return jnp.min(d - geom.radius[..., None], axis=(-2, -1)).reshape(batch)

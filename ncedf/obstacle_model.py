@@ -25,12 +25,10 @@ from __future__ import annotations
 
 import dataclasses
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 
 from ncedf.convex import Polytopes, fit_polytopes, observed_motion, robot_clearance
-from ncedf.grid_model import GridFit, grid_clearance
+from ncedf.grid_model import GridFit, fit_clearance
 from ncedf.validate import check_fields
 
 
@@ -59,12 +57,7 @@ def model_clearance(fitted: Polytopes | GridFit, arcs, frames, spec, t=0.0):
     """(B...,) lower bound of the clearance of the states arcs (B..., M, 3) with frames
     (B..., M + 1, 4, 4) to a fitted obstacle model (polytopes moved ``t`` s ahead), m."""
     if isinstance(fitted, GridFit):
-        still = grid_clearance(arcs, frames, spec, fitted.grid)
-        shape = jnp.broadcast_shapes(still.shape, jnp.shape(t))
-        moving = jax.lax.cond(jnp.any(fitted.moving.present),  # skipped where nothing moves
-                              lambda: jnp.broadcast_to(robot_clearance(arcs, frames, spec, fitted.moving, t), shape),
-                              lambda: jnp.full(shape, jnp.inf, still.dtype))
-        return jnp.minimum(still, moving)
+        return fit_clearance(arcs, frames, spec, fitted, t)
     return robot_clearance(arcs, frames, spec, fitted, t)
 
 

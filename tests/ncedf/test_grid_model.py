@@ -8,7 +8,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 from ncedf.controller import Controller, ControllerConfig
-from ncedf.grid_model import EXACT_BAND, REACH, GridModel, grid_clearance, grid_distance
+from ncedf.grid_model import EXACT_BAND, REACH, GridModel, fit_clearance, grid_distance
 from ncedf.guide import Guide, _gradient_at, guided_distance
 from ncedf.presets import Observation, ours, sampling_gap
 from ncedf.robot import RobotSpec, forward_kinematics
@@ -130,10 +130,11 @@ def test_the_guide_measures_the_way_round_a_wall_through_its_window():
 def test_the_clearance_of_a_robot_is_at_most_its_exact_clearance_to_the_points():
     spec = RobotSpec(2)
     points = wall(16.0, 1.0, x=1.5)
-    grid = fit(points, (2.0, 0.0, 2.0), sampling_gap(points))
+    mask = np.ones(len(points), bool)
+    fitted = GridModel(sampling_gap(points), 0.2).fit(points, mask, points, mask, 0.05, np.array([2.0, 0.0, 2.0]))
     arcs = np.asarray(jax.random.uniform(jax.random.PRNGKey(0), (64, 2, 3), minval=1.7, maxval=2.3), np.float32)
     frames = forward_kinematics(jnp.asarray(arcs), spec)
-    bound = np.asarray(grid_clearance(jnp.asarray(arcs), frames, spec, grid))
+    bound = np.asarray(fit_clearance(jnp.asarray(arcs), frames, spec, fitted))
     exact = make_shape("exact", spec)
     truth = np.array([float(exact.min_distance(jnp.asarray(points), jnp.asarray(a), jnp.ones(len(points), bool)))
                       for a in arcs])
