@@ -16,9 +16,13 @@ without assuming convexity:
   ``sqrt(reach^2 - gap^2)`` high, so the hole stays closed, while an opening's
   edges move in by only ``reach - sqrt(reach^2 - gap^2)`` (a cavity or passage
   narrower than ``2 reach`` fills, though). Each surface is closed on its own:
-  the hit cells joined wherever two lie within ``REACH`` gaps, more than a hole's
-  width, so that a passage between two obstacles (a lane between pillars, a slot
-  between slabs) keeps its width less the two edges' move. Free cells that do not
+  the hit cells joined wherever two lie within ``LINK`` gaps, so that a passage
+  between two obstacles wider than that (a lane between pillars, a slot between
+  slabs) keeps its width less the two edges' move. A surface sampled at density
+  rho splits at a link r about as often as one of its n samples has no other
+  within r: ``n exp(-pi rho r^2)``, and half the exponent for a sample on the
+  surface's edge; at the gap (``pi rho gap^2 = ln n``) ``n^(1 - LINK^2)``, and
+  ``n^(-LINK^2 / 2)`` per edge sample (for a thousand samples 1e-6 and 3e-5). Free cells that do not
   connect to the grid's border are enclosed by the closed surfaces, inside a
   solid, and are closed too;
 * the field: at a free cell's centre the distance to the nearest observed point
@@ -74,8 +78,10 @@ from ncedf.validate import check_fields
 GRID_CACHE = 4
 #: The field's value without static obstacles, m (finite: the interpolation weighs it by zero).
 FAR = 1e6
-#: The reach at first, and the distance that joins two hit cells into one surface, in gaps.
+#: The reach at first, in gaps.
 REACH = 2.0
+#: The distance that joins two hit cells into one surface, in gaps (module docstring).
+LINK = 1.75
 #: The factor the reach shrinks by while it shuts the goal in.
 SHRINK = 0.9
 #: Free cells within this distance of a hit cell get the points' exact distance, m (beyond it the
@@ -241,7 +247,7 @@ def _fit(data: bytes, anchors: bytes, corridor: bool, model: GridModel) -> Grid:
     cells = np.unique(np.rint((points - origin) / h).astype(int), axis=0)
     hit = np.zeros(shape, bool)
     hit[tuple(cells.T)] = True
-    parts = surfaces(cells, REACH * model.gap, h)
+    parts = surfaces(cells, LINK * model.gap, h)
     goal = tuple(np.clip(np.rint((anchors[-1] - origin) / h).astype(int), 0, np.asarray(shape) - 1))
     way_in = np.zeros(shape, bool)
     if corridor:

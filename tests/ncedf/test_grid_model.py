@@ -8,7 +8,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 from ncedf.controller import Controller, ControllerConfig
-from ncedf.grid_model import EXACT_BAND, REACH, GridModel, fit_clearance, grid_distance
+from ncedf.grid_model import EXACT_BAND, LINK, REACH, GridModel, fit_clearance, grid_distance
 from ncedf.guide import Guide, _gradient_at, guided_distance
 from ncedf.presets import Observation, ours, sampling_gap
 from ncedf.robot import RobotSpec, forward_kinematics
@@ -228,6 +228,26 @@ def test_the_lanes_between_separate_pillars_stay_open_and_their_surfaces_closed(
     field = Guide(0.2).fit(grid, goal)
     straight = float(np.linalg.norm(goal - start))
     assert straight <= float(guided_distance(field, jnp.asarray(start, jnp.float32))) < straight * 1.15
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_lane_narrower_than_a_samples_hole_stays_open_between_separate_pillars(seed):
+    """The pillars' faces 0.7 m apart, less than the widest hole between their samples (two gaps):
+    joined at two gaps the pillars were one surface and its closing shut the lanes (a negative
+    field); each pillar closed on its own keeps them open, every point of a face closed. A lane's
+    midpoint keeps its half-width less the faces' move ((2 - sqrt 3) gaps at a reach of two gaps)
+    and two half cell diagonals (a point's cell centre, and the query's)."""
+    points = pillars(16.0, 1.2, seed=seed)
+    gap = sampling_gap(points)
+    assert 2 * gap > 0.7 > LINK * gap
+    grid = fit(points, np.array([6.0, 0.6, 2.0]), gap)
+    angle, z = np.meshgrid(np.linspace(0, 2 * np.pi, 24), np.linspace(0.5, 3.5, 7))
+    face = np.column_stack([3.2 + 0.25 * np.cos(angle.ravel()), 0.25 * np.sin(angle.ravel()), z.ravel()])
+    assert np.all(np.asarray(grid_distance(grid, jnp.asarray(face, jnp.float32))) < 0.2)
+    lanes = np.array([[x, y, z] for x in (2.0, 3.2, 4.4) for y in (-0.6, 0.6) for z in (1.0, 2.0, 3.0)], np.float32)
+    room = 0.35 - (2.0 - np.sqrt(3.0)) * gap - float(grid.spacing) * np.sqrt(3.0)
+    assert room > 0.05
+    assert np.all(np.asarray(grid_distance(grid, jnp.asarray(lanes))) >= room)
 
 
 def test_the_guides_gradient_at_a_cell_is_numpys_over_the_whole_grid():
