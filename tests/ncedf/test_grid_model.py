@@ -66,10 +66,10 @@ def test_a_free_cell_near_the_points_holds_the_exact_distance_to_the_points_and_
     points = RNG.uniform(-2.0, 2.0, (300, 3)).astype(np.float32)
     grid = fit(points, (0.0, 0.0, 3.0), gap=0.3)
     values, h, origin = grid.array(), float(grid.spacing), np.asarray(grid.origin, np.float64)
-    # The cells that hold a point as the fit rounds them: from its float64 origin, not the grid's float32.
-    lower = grid_box(points.astype(np.float64), np.stack([BASE, (0.0, 0.0, 3.0)]), GridModel(0.3, 0.2))[0]
+    # The cells that hold a point as the fit rounds them: by its float64 origin and spacing, not the grid's float32.
+    lower, spacing, _ = grid_box(points.astype(np.float64), np.stack([BASE, (0.0, 0.0, 3.0)]), GridModel(0.3, 0.2))
     hit = np.zeros(values.shape, bool)
-    hit[tuple(np.rint((points - lower) / h).astype(int).T)] = True
+    hit[tuple(np.rint((points - lower) / spacing).astype(int).T)] = True
     filled = origin + h * np.argwhere((values < 0) & ~hit)
     free = origin + h * np.argwhere(values >= 0)
     free = free[np.all(np.abs(free) < 2.0 + EXACT_BAND, axis=1)]  # the points' box and the band round it
