@@ -15,7 +15,10 @@ without assuming convexity:
   radius ``gap`` in a sampled surface the grown balls still stand
   ``sqrt(reach^2 - gap^2)`` high, so the hole stays closed, while an opening's
   edges move in by only ``reach - sqrt(reach^2 - gap^2)`` (a cavity or passage
-  narrower than ``2 reach`` fills, though). Each surface is closed on its own:
+  narrower than ``2 reach`` fills, though). A cell is closed only where the
+  closings at two reaches, ``reach`` and ``INNER reach``, both close it: each
+  closes the holes; the larger moves an opening's edges less, the smaller fills
+  only openings narrower than ``2 INNER reach``. Each surface is closed on its own:
   the hit cells joined wherever two lie within ``LINK`` gaps, so that a passage
   between two obstacles wider than that (a lane between pillars, a slot between
   slabs) keeps its width less the two edges' move. A surface sampled at density
@@ -80,6 +83,8 @@ GRID_CACHE = 4
 FAR = 1e6
 #: The reach at first, in gaps.
 REACH = 2.0
+#: The second closing's reach, a fraction of the first (module docstring).
+INNER = 0.75
 #: The distance that joins two hit cells into one surface, in gaps (module docstring).
 LINK = 1.75
 #: The factor the reach shrinks by while it shuts the goal in.
@@ -252,11 +257,15 @@ def _fit(data: bytes, anchors: bytes, corridor: bool, model: GridModel) -> Grid:
     way_in = np.zeros(shape, bool)
     if corridor:
         way_in = near_segment(shape, origin, h, anchors[-2:], model.corridor_radius) & ~hit
+    def field_at(reach: float) -> np.ndarray:
+        closed = closed_cells(parts, shape, h, reach, model.gap) & closed_cells(parts, shape, h, INNER * reach, model.gap)
+        return signed_field(closed & ~way_in, hit, points, origin, h)
+
     reach = REACH * model.gap
-    field = signed_field(closed_cells(parts, shape, h, reach, model.gap) & ~way_in, hit, points, origin, h)
+    field = field_at(reach)
     while reach > h and not goal_open(field, goal, model.keep_open):
         reach *= SHRINK
-        field = signed_field(closed_cells(parts, shape, h, reach, model.gap) & ~way_in, hit, points, origin, h)
+        field = field_at(reach)
     return padded(origin, h, field, model.max_cells)
 
 

@@ -193,6 +193,42 @@ def test_an_opening_of_the_robots_diameter_and_a_margin_stays_open_in_a_closed_w
     assert 2.0 <= float(guided_distance(field, jnp.asarray(start, jnp.float32))) < 2.0 * 1.15
 
 
+def thick_wall(density: float, window: float, thickness: float = 0.3, size: float = 6.0, seed: int = 0):
+    """Points uniform at ``density`` per m^2 on both faces of a wall x in [3, 3 + ``thickness``] over
+    y, z in [-size/2, size/2], less a square window of side ``window`` centred at y = z = 0, and on
+    the window's four sides."""
+    rng = np.random.default_rng(seed)
+    faces = [wall(density, window, size, x, seed=int(rng.integers(1 << 30))) for x in (3.0, 3.0 + thickness)]
+    for axis in (1, 2):
+        for side in (-window / 2, window / 2):
+            count = rng.poisson(density * thickness * window)
+            points = np.column_stack([rng.uniform(3.0, 3.0 + thickness, count), np.zeros(count),
+                                      rng.uniform(-window / 2, window / 2, count)])
+            points[:, [axis, 3 - axis]] = np.column_stack([np.full(count, side), points[:, 2]])
+            faces.append(points.astype(np.float32))
+    return np.concatenate(faces)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_window_through_a_thick_wall_narrower_than_the_first_closings_span_stays_open(seed):
+    """16 points per m^2 on a 0.3 m thick wall with a 1 m window, narrower than twice the first
+    reach (that closing alone fills it): the window's centre keeps its half-width less the edges'
+    move at the first reach ((2 - sqrt 3) gaps) and two half cell diagonals, and both faces of the
+    wall are closed."""
+    points = thick_wall(16.0, 1.0, seed=seed)
+    gap = sampling_gap(points)
+    assert 1.0 < 2 * REACH * gap
+    grid = fit(points, np.array([4.5, 0.0, 0.0]), gap)
+    yz = np.stack(np.meshgrid(np.linspace(-2.3, 2.3, 24), np.linspace(-2.3, 2.3, 24)), -1).reshape(-1, 2)
+    solid = yz[np.max(np.abs(yz), axis=1) > 0.5 + 0.5]
+    for x in (3.0, 3.3):
+        on_wall = jnp.asarray(np.column_stack([np.full(len(solid), x), solid]), jnp.float32)
+        assert np.all(np.asarray(grid_distance(grid, on_wall)) < 0.2)
+    room = 0.5 - (2.0 - np.sqrt(3.0)) * gap - float(grid.spacing) * np.sqrt(3.0)
+    assert room > 0.2
+    assert float(grid_distance(grid, jnp.asarray([3.15, 0.0, 0.0]))) >= room
+
+
 def pillars(density: float, spacing: float, radius: float = 0.25, height: float = 4.0, seed: int = 0) -> np.ndarray:
     """Points uniform at ``density`` per m^2 on the round faces of a 3 x 3 grid of upright
     cylinders (axes at x in {2, 2 + spacing, 2 + 2 spacing}, y in {-spacing, 0, spacing}, z in
