@@ -357,10 +357,16 @@ def fit_polytopes(points: np.ndarray, link: float, groups: np.ndarray | None = N
                      np.int32(left_out))
 
 
-def polytope_distance(x: jnp.ndarray, polytopes: Polytopes, t=0.0, dense: bool | None = None) -> jnp.ndarray:
+def polytope_distance(x: jnp.ndarray, polytopes: Polytopes, t=0.0, dense: bool | None = None,
+                      turning: bool = False) -> jnp.ndarray:
     """(...,) lower bound of the distance from points x (..., 3) to the nearest polytope,
     each moved by ``t`` times its velocity (t: s, broadcastable with x[..., 0]), m; negative
     inside (minus the depth); +inf without polytopes.
+
+    ``turning``: each polytope anywhere within its speed times t of where it is (an obstacle
+    that may turn or stop at any instant, no faster than seen): its distance unmoved less
+    ``|v| t``. Proof: every such position lies in P + B(|v| t), whose distance is ``d_P - |v| t``
+    outside it (P convex) and negative inside, and d_P's lower bound less ``|v| t`` bounds it.
 
     Per polytope: the larger of the signed distance to its box (exact) and of the
     planes' ``n_k . x - b_k``; a lower bound because the polytope lies in each. Per
@@ -378,23 +384,29 @@ def polytope_distance(x: jnp.ndarray, polytopes: Polytopes, t=0.0, dense: bool |
     None for the device's (``jax.lax.platform_dependent``), True for all at once,
     False for the loop; the two agree to float rounding.
     """
+    looped = functools.partial(_looped_distance, turning=turning)
+    as_dense = functools.partial(_dense_distance, turning=turning)
     if dense is None:
-        return jax.lax.platform_dependent(x, polytopes, t, cpu=_looped_distance, default=_dense_distance)
-    return (_dense_distance if dense else _looped_distance)(x, polytopes, t)
+        return jax.lax.platform_dependent(x, polytopes, t, cpu=looped, default=as_dense)
+    return (as_dense if dense else looped)(x, polytopes, t)
 
 
-def _looped_distance(x: jnp.ndarray, polytopes: Polytopes, t=0.0) -> jnp.ndarray:
+def _looped_distance(x: jnp.ndarray, polytopes: Polytopes, t=0.0, turning: bool = False) -> jnp.ndarray:
     """:func:`polytope_distance`, a loop over the clusters that skips what a cluster lacks."""
     p = jax.tree.map(jnp.asarray, polytopes)  # indexed by the loop's cluster index
     t = jnp.asarray(t, x.dtype)
     xs = [x[..., i] for i in range(3)]
 
-    def moved(c):  # the points relative to cluster c's motion
-        return [xs[i] - t * p.velocity[c, i] for i in range(3)]
+    def moved(c):  # the points relative to cluster c's motion (turning: where it is)
+        return xs if turning else [xs[i] - t * p.velocity[c, i] for i in range(3)]
+
+    def spread(c, d):  # turning: less the distance cluster c may cover
+        return d - t * jnp.linalg.norm(p.velocity[c]) if turning else d
 
     def ball(c, nearest):  # cluster c's ball
         r = moved(c)
-        return jnp.minimum(nearest, jnp.sqrt(sum((r[i] - p.centre[c, i]) ** 2 for i in range(3))) - p.radius[c])
+        return jnp.minimum(nearest, spread(c, jnp.sqrt(sum((r[i] - p.centre[c, i]) ** 2 for i in range(3)))
+                                              - p.radius[c]))
 
     def cluster(planes, c, nearest):  # box c cut by its first ``planes`` plane slots
         rel = moved(c)
@@ -405,7 +417,7 @@ def _looped_distance(x: jnp.ndarray, polytopes: Polytopes, t=0.0) -> jnp.ndarray
         for k in range(planes):
             s = sum(rel[i] * p.normals[c, k, i] for i in range(3)) - p.offsets[c, k]
             d = jnp.maximum(d, jnp.where(p.valid[c, k], s, -jnp.inf))
-        return jnp.minimum(nearest, d)
+        return jnp.minimum(nearest, spread(c, d))
 
     slots = p.valid.shape[1]
     buckets = tuple(sorted({min(b, slots) for b in PLANE_BUCKETS} | {slots}))
@@ -416,12 +428,12 @@ def _looped_distance(x: jnp.ndarray, polytopes: Polytopes, t=0.0) -> jnp.ndarray
     return jax.lax.fori_loop(0, p.present.shape[0], lambda c, n: jax.lax.switch(kinds[c], branches, c, n), nearest)
 
 
-def _dense_distance(x: jnp.ndarray, polytopes: Polytopes, t=0.0) -> jnp.ndarray:
+def _dense_distance(x: jnp.ndarray, polytopes: Polytopes, t=0.0, turning: bool = False) -> jnp.ndarray:
     """:func:`polytope_distance`, every cluster and plane slot at once (a trailing axis C),
     elementwise per component and unrolled over the plane slots as in the loop, so XLA fuses it."""
     p = jax.tree.map(jnp.asarray, polytopes)
     t = jnp.asarray(t, x.dtype)[..., None]
-    rel = [x[..., None, i] - t * p.velocity[:, i] for i in range(3)]  # 3 x (..., C)
+    rel = [x[..., None, i] - (0.0 if turning else t * p.velocity[:, i]) for i in range(3)]  # 3 x (..., C)
     q = [jnp.abs(rel[i] - 0.5 * (p.upper[:, i] + p.lower[:, i])) - 0.5 * (p.upper[:, i] - p.lower[:, i])
          for i in range(3)]
     d = (jnp.sqrt(sum(jnp.maximum(qi, 0.0) ** 2 for qi in q))
@@ -430,14 +442,17 @@ def _dense_distance(x: jnp.ndarray, polytopes: Polytopes, t=0.0) -> jnp.ndarray:
         s = sum(rel[i] * p.normals[:, k, i] for i in range(3)) - p.offsets[:, k]
         d = jnp.maximum(d, jnp.where(p.valid[:, k], s, -jnp.inf))
     ball = jnp.sqrt(sum((rel[i] - p.centre[:, i]) ** 2 for i in range(3))) - p.radius
-    d = jnp.where(p.present, jnp.where(p.ball, ball, d), jnp.inf)
-    return jnp.min(d, axis=-1, initial=jnp.inf)
+    d = jnp.where(p.ball, ball, d)
+    if turning:
+        d = d - t * jnp.linalg.norm(p.velocity, axis=-1)
+    return jnp.min(jnp.where(p.present, d, jnp.inf), axis=-1, initial=jnp.inf)
 
 
 def robot_clearance(arcs: jnp.ndarray, frames: jnp.ndarray, spec: RobotSpec, polytopes: Polytopes,
-                    t=0.0, dense: bool | None = None) -> jnp.ndarray:
+                    t=0.0, dense: bool | None = None, turning: bool = False) -> jnp.ndarray:
     """(B...,) lower bound of the robot body's clearance to the polytopes, each moved by
-    ``t`` times its velocity (t: s; B... is the broadcast of the batch shapes of arcs and t), m.
+    ``t`` times its velocity (t: s; B... is the broadcast of the batch shapes of arcs and t), m
+    (``turning``: anywhere within its speed times t, :func:`polytope_distance`).
 
     On the CPU the states are scored ``CLEARANCE_CHUNK`` at a time (``jax.lax.map``), so
     that the cover centres and their distances of one pass stay in its caches, by the
@@ -452,7 +467,7 @@ def robot_clearance(arcs: jnp.ndarray, frames: jnp.ndarray, spec: RobotSpec, pol
     def scored(as_dense, states):  # configurations (S, M, 3), (S, M + 1, 4, 4), (S,) -> (S,)
         arc, frame, time = states
         geom = cover.prepare(arc, frame)  # centres (S, M, n, 3), radius (S, M)
-        d = polytope_distance(geom.centres, polytopes, time[:, None, None], as_dense) - geom.radius[..., None]
+        d = polytope_distance(geom.centres, polytopes, time[:, None, None], as_dense, turning) - geom.radius[..., None]
         return jnp.min(d, axis=(-2, -1))
 
     def chunked(states):  # whole chunks in a loop, then the rest

@@ -315,11 +315,13 @@ def grid_distance(grid: Grid, x: jnp.ndarray) -> jnp.ndarray:
     return jnp.where(out > 0, jnp.sqrt(out + jnp.maximum(at_q, 0.0) ** 2), at_q)
 
 
-def fit_clearance(arcs: jnp.ndarray, frames: jnp.ndarray, spec: RobotSpec, fit: GridFit, t=0.0) -> jnp.ndarray:
+def fit_clearance(arcs: jnp.ndarray, frames: jnp.ndarray, spec: RobotSpec, fit: GridFit, t=0.0,
+                  turning: bool = False) -> jnp.ndarray:
     """(B...,) lower bound of the clearance of the bodies (arcs (B..., M, 3), their frames
-    (B..., M + 1, 4, 4)) to the fit, its moving polytopes moved ``t`` s ahead (B... the broadcast of
-    the batch shapes of arcs and t), m: the least over the cover balls, whose centres serve the grid
-    and the polytopes both (the polytopes skipped where none is present)."""
+    (B..., M + 1, 4, 4)) to the fit, its moving polytopes moved ``t`` s ahead (``turning``: anywhere
+    within their speed times t, ``ncedf.convex.polytope_distance``; B... the broadcast of the batch
+    shapes of arcs and t), m: the least over the cover balls, whose centres serve the grid and the
+    polytopes both (the polytopes skipped where none is present)."""
     cover = SphereShape(spec, per_link=COVER_SPHERES)
     batch = jnp.broadcast_shapes(arcs.shape[:-2], jnp.shape(t))
     flat_arcs = jnp.broadcast_to(arcs, batch + arcs.shape[-2:]).reshape((-1,) + arcs.shape[-2:])
@@ -328,5 +330,6 @@ def fit_clearance(arcs: jnp.ndarray, frames: jnp.ndarray, spec: RobotSpec, fit: 
     geom = jax.vmap(cover.prepare)(flat_arcs, flat_frames)  # centres (B, M, n, 3), radius (B, M)
     still = grid_distance(fit.grid, geom.centres)  # (B, M, n)
     d = jax.lax.cond(jnp.any(fit.moving.present),
-                     lambda: jnp.minimum(still, polytope_distance(geom.centres, fit.moving, time)), lambda: still)
+                     lambda: jnp.minimum(still, polytope_distance(geom.centres, fit.moving, time, turning=turning)),
+                     lambda: still)
     return jnp.min(d - geom.radius[..., None], axis=(-2, -1)).reshape(batch)

@@ -53,12 +53,13 @@ class ConvexModel:
         return fit_polytopes(points[mask], self.link, static[mask], velocity[mask], bounds=(True,))
 
 
-def model_clearance(fitted: Polytopes | GridFit, arcs, frames, spec, t=0.0):
+def model_clearance(fitted: Polytopes | GridFit, arcs, frames, spec, t=0.0, turning: bool = False):
     """(B...,) lower bound of the clearance of the states arcs (B..., M, 3) with frames
-    (B..., M + 1, 4, 4) to a fitted obstacle model (polytopes moved ``t`` s ahead), m."""
+    (B..., M + 1, 4, 4) to a fitted obstacle model (polytopes moved ``t`` s ahead; ``turning``:
+    anywhere within their speed times t, ``ncedf.convex.polytope_distance``), m."""
     if isinstance(fitted, GridFit):
-        return fit_clearance(arcs, frames, spec, fitted, t)
-    return robot_clearance(arcs, frames, spec, fitted, t)
+        return fit_clearance(arcs, frames, spec, fitted, t, turning)
+    return robot_clearance(arcs, frames, spec, fitted, t, turning=turning)
 
 
 def static_part(fitted: Polytopes | GridFit) -> Polytopes | GridFit:

@@ -62,7 +62,8 @@ def step_clearance(dt: float, substeps: int, broad: BroadPhase | None, shape, ar
     """Predicted clearance over one step for each action: min over the states
     ``arc + (s / S) u dt``, s = 1..S (``substeps``), of the representation's min distance to the
     cloud (broad phase, or brute force where ``broad`` is None) and of the clearance to the
-    fitted obstacle model if given (polytopes moved to the substep's time, or a grid).
+    fitted obstacle model if given (a grid, and each moving polytope anywhere its speed takes it
+    by the substep's time: an obstacle seen moving may turn within the step).
 
     Args:
       arc: (M, 3) m.  actions: (C, M, 3) m/s.  points: (P, 3) m; mask: (P,) bool.
@@ -81,7 +82,7 @@ def step_clearance(dt: float, substeps: int, broad: BroadPhase | None, shape, ar
         clearance = jax.vmap(one)(states)
     if model is not None:
         frames = forward_kinematics(states, shape.spec)
-        ahead = model_clearance(model, states, frames, shape.spec, dt * frac)  # (C, S)
+        ahead = model_clearance(model, states, frames, shape.spec, dt * frac, turning=True)  # (C, S)
         clearance = jnp.minimum(clearance, jnp.min(ahead, axis=1))
     return clearance
 

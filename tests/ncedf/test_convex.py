@@ -380,6 +380,30 @@ def test_a_moving_polytope_is_scored_where_it_will_be(dense):
                                _box_sdf(x, (0.0, 0.0, 0.0), (1.0, 1.0, 1.0)), atol=1e-5)
 
 
+@DENSE
+def test_a_turning_polytope_is_scored_at_its_nearest_reachable_place(dense):
+    """``turning``: a box and a ball moving at |v| may turn within t; the bound is the distance to
+    the nearest of their places within |v| t (brute force over 4000 directions), for points that
+    no such place reaches."""
+    rng = np.random.default_rng(6)
+    corners = 0.5 * np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)])
+    box_points = np.concatenate([_box_surface(rng, (0.0, 0.0, 0.0), (1.0, 1.0, 1.0), 30.0), corners])
+    ball_points = _sphere_surface(rng, np.array([0.0, 0.0, 0.0]), 0.5, 30)
+    v = np.array([0.3, -0.2, 0.5])
+    directions = rng.normal(size=(4000, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    for points, exact in ((box_points, lambda y: _box_sdf(y, (0.0, 0.0, 0.0), (1.0, 1.0, 1.0))),
+                          (ball_points, lambda y: np.linalg.norm(y, axis=-1) - 0.5)):
+        poly = fit_polytopes(points, 1.0, velocity=np.tile(v, (len(points), 1)))
+        x = rng.uniform(-3.0, 3.0, (300, 3)).astype(np.float32)
+        t = rng.uniform(0.0, 2.0, 300).astype(np.float32)
+        reach = t * np.linalg.norm(v)
+        keep = exact(x) > reach
+        d = np.asarray(polytope_distance(jnp.asarray(x), poly, jnp.asarray(t), dense=dense, turning=True))[keep]
+        brute = np.array([np.min(exact(p - r * directions)) for p, r in zip(x[keep], reach[keep])])
+        assert np.all(d <= brute + 1e-5) and np.all(brute - d < 0.01)
+
+
 def test_a_cluster_that_is_not_convex_is_left_to_the_cloud():
     solid, ported = solid_wall(), ported_wall()
     # Closed form: the points halfway through the port's inner faces lie half the thickness deep.

@@ -9,8 +9,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jitted import step_clearance
+from jitted import robot_clearance, step_clearance
 from ncedf.controller import ControllerConfig
+from ncedf.convex import fit_polytopes
 from ncedf.geometry import robot_signed_distance
 from ncedf.mppi import MPPIConfig, init_state, mppi_step
 from ncedf.robot import RobotSpec, forward_kinematics
@@ -152,6 +153,23 @@ def test_step_clearance_is_the_min_over_the_substeps(broad_phase):
         shared = step_clearance(1.0, 4, broad, shape, jnp.asarray(ARC), actions, wall, jnp.ones(len(wall), bool),
                                 shared=True)
         np.testing.assert_allclose(shared, got, atol=1e-6)
+
+
+def test_the_check_scores_a_ball_moving_away_as_if_it_may_turn_back():
+    """A still link beside a ball that moves away at 0.2 m/s: over a 1 s step the check takes the
+    ball anywhere within 0.2 m of where it is (it may turn), so the clearance is the clearance now
+    less 0.2 m, not the larger clearance where the ball is heading."""
+    rng = np.random.default_rng(3)
+    directions = rng.normal(size=(30, 3))
+    surface = np.array([0.9, 0.0, 1.5]) + 0.3 * directions / np.linalg.norm(directions, axis=1, keepdims=True)
+    ball = fit_polytopes(surface, 1.0, velocity=np.tile([0.2, 0.0, 0.0], (30, 1)))
+    shape, arc = make_shape("exact", SPEC), jnp.asarray(ARC)
+    frames = forward_kinematics(arc, SPEC)
+    now, ahead = (float(robot_clearance(arc, frames, SPEC, ball, t)) for t in (0.0, 1.0))
+    assert ahead - now == pytest.approx(0.2, abs=1e-5)
+    still = jnp.zeros((1, 1, 3), jnp.float32)
+    got = step_clearance(1.0, 4, None, shape, arc, still, jnp.zeros((1, 3)), jnp.zeros(1, bool), ball)
+    assert float(got[0]) == pytest.approx(now - 0.2, abs=1e-5)
 
 
 def test_release_controls_zero_sum_and_bounds():
