@@ -257,6 +257,7 @@ def _fit(data: bytes, anchors: bytes, corridor: bool, model: GridModel) -> Grid:
     way_in = np.zeros(shape, bool)
     if corridor:
         way_in = near_segment(shape, origin, h, anchors[-2:], model.corridor_radius) & ~hit
+
     def field_at(reach: float) -> np.ndarray:
         closed = closed_cells(parts, shape, h, reach, model.gap) & closed_cells(parts, shape, h, INNER * reach, model.gap)
         return signed_field(closed & ~way_in, hit, points, origin, h)
