@@ -259,7 +259,8 @@ def _fit(data: bytes, anchors: bytes, corridor: bool, model: GridModel) -> Grid:
         way_in = near_segment(shape, origin, h, anchors[-2:], model.corridor_radius) & ~hit
 
     def field_at(reach: float) -> np.ndarray:
-        closed = closed_cells(parts, shape, h, reach, model.gap) & closed_cells(parts, shape, h, INNER * reach, model.gap)
+        closed = (closed_cells(parts, shape, h, reach, model.gap)
+                  & closed_cells(parts, shape, h, INNER * reach, model.gap))
         return signed_field(closed & ~way_in, hit, points, origin, h)
 
     reach = REACH * model.gap

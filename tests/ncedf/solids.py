@@ -1,4 +1,4 @@
-"""Surface samples of solids with holes, for the obstacle model's convexity rule."""
+"""Surface samples of solids with holes (the obstacle model's convexity rule) and of spheres."""
 
 import numpy as np
 
@@ -30,3 +30,9 @@ def solid_wall(**grid) -> np.ndarray:
 def ported_wall(**grid) -> np.ndarray:
     """Surface samples of the wall with its port, the port's inner faces included."""
     return surface(lambda p: wall(p, port=True), **grid)
+
+
+def sphere_surface(rng, centre, radius, n) -> np.ndarray:
+    """n uniform points on a sphere, float32 as the scenarios observe them."""
+    d = rng.normal(size=(n, 3))
+    return (np.asarray(centre) + radius * d / np.linalg.norm(d, axis=1, keepdims=True)).astype(np.float32)

@@ -21,7 +21,7 @@ from ncedf.recovery import RouteRecovery
 from ncedf.robot import RobotSpec, forward_kinematics, sample_arc_lengths
 from ncedf.safety import SafetyFilter
 from ncedf.shapes import make_shape, sphere_cover_radius
-from solids import ported_wall, solid_wall
+from solids import ported_wall, solid_wall, sphere_surface
 
 
 def _box_surface(rng, centre, size, density):
@@ -84,19 +84,13 @@ def test_a_rotated_box_is_closed_by_its_hull_planes(dense):
     assert np.all((d[far] < 0) == (truth[far] < 0))
 
 
-def _sphere_surface(rng, centre, radius, n):
-    """n uniform points on a sphere, float32 as the scenarios observe them."""
-    d = rng.normal(size=(n, 3))
-    return (np.asarray(centre) + radius * d / np.linalg.norm(d, axis=1, keepdims=True)).astype(np.float32)
-
-
 @DENSE
 def test_a_sampled_sphere_is_closed_as_its_ball_moving_with_it(dense):
     # 30 points on a 0.5 m sphere (the cluttered scene's moving spheres): the model is the sphere
     # itself, where the points' bounding box sticks out at its corners and their hull cuts under it.
     rng = np.random.default_rng(5)
     centre, radius, v = np.array([4.0, -1.0, 2.2]), 0.5, np.array([0.0, 1.0, -0.8])
-    points = _sphere_surface(rng, centre, radius, 30)
+    points = sphere_surface(rng, centre, radius, 30)
     poly = fit_polytopes(points, 1.0, velocity=np.tile(v, (30, 1)))
     assert int(np.sum(poly.present)) == 1 and bool(poly.ball[0])
     x = rng.uniform(-3.0, 3.0, (2000, 3)).astype(np.float32) + centre.astype(np.float32)
@@ -115,7 +109,7 @@ def test_touching_spheres_in_one_moving_cluster_are_each_a_ball():
     # joins them into one cluster on no one sphere; its halves, and theirs, each lie on one.
     rng = np.random.default_rng(8)
     centres = np.array([[3.0, -4.0, z] for z in (3.5, 2.5, 1.5, 0.5)])
-    points = np.concatenate([_sphere_surface(rng, c, 0.5, 30) for c in centres])
+    points = np.concatenate([sphere_surface(rng, c, 0.5, 30) for c in centres])
     v = np.tile([0.0, 1.0, 0.0], (len(points), 1))
     assert len(np.unique(clusters(points, 1.0, bounds=False))) == 1
     poly = fit_polytopes(points, 1.0, velocity=v, bounds=())
@@ -132,7 +126,7 @@ def test_touching_spheres_in_one_moving_cluster_are_each_a_ball():
 
 def test_only_clusters_on_a_sphere_are_balls():
     rng = np.random.default_rng(6)
-    points = _sphere_surface(rng, (1.0, -2.0, 0.5), 0.7, 12)
+    points = sphere_surface(rng, (1.0, -2.0, 0.5), 0.7, 12)
     found = fit_sphere(points)
     assert found is not None
     np.testing.assert_allclose(found[0], (1.0, -2.0, 0.5), atol=1e-5)
@@ -141,8 +135,8 @@ def test_only_clusters_on_a_sphere_are_balls():
     plane = np.concatenate([rng.uniform(-1.0, 1.0, (50, 2)), np.full((50, 1), 0.3)], axis=1).astype(np.float32)
     rot, _ = np.linalg.qr(rng.normal(size=(3, 3)))
     tilted = (plane @ rot.T).astype(np.float32)  # coplanar up to float32 rounding
-    noisy = _sphere_surface(rng, (0.0, 0.0, 0.0), 0.5, 30) + rng.normal(scale=0.02, size=(30, 3))
-    dome = _sphere_surface(rng, (0.0, 0.0, 0.0), 1.0, 400)
+    noisy = sphere_surface(rng, (0.0, 0.0, 0.0), 0.5, 30) + rng.normal(scale=0.02, size=(30, 3))
+    dome = sphere_surface(rng, (0.0, 0.0, 0.0), 1.0, 400)
     dome = dome[dome[:, 2] > 0.3]  # its bounding box is smaller than its sphere's ball
     box = _box_surface(rng, (0.0, 0.0, 0.0), (1.0, 1.0, 1.0), 30.0)
     for cluster in (box, plane, tilted, noisy, dome, points[:4]):
@@ -157,7 +151,7 @@ def test_a_fit_from_the_cache_is_the_fit_from_scratch():
     groups = np.r_[np.zeros(30, bool), np.ones(len(static), bool)]
     fits = []
     for centre in ((4.0, 0.0, 2.2), (4.0, 0.0, 2.16), (4.0, 0.0, 2.12)):
-        cloud = np.concatenate([_sphere_surface(np.random.default_rng(8), centre, 0.5, 30), static])
+        cloud = np.concatenate([sphere_surface(np.random.default_rng(8), centre, 0.5, 30), static])
         fits.append(fit_polytopes(cloud, 1.0, groups))
     _fit_group.cache_clear()
     fresh = fit_polytopes(cloud, 1.0, groups)
@@ -279,7 +273,7 @@ def test_the_clearance_scores_states_alike_in_passes_and_all_at_once():
     corners = 0.5 * np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)])
     rot, _ = np.linalg.qr(rng.normal(size=(3, 3)))
     rotated = (np.concatenate([_box_surface(rng, (0, 0, 0), (1, 1, 1), 20.0), corners]) @ rot.T) + (-2.0, 2.0, 2.0)
-    ball = _sphere_surface(rng, (0.0, -3.0, 2.5), 0.5, 30)
+    ball = sphere_surface(rng, (0.0, -3.0, 2.5), 0.5, 30)
     points = np.concatenate([_box_surface(rng, (3.0, 0.0, 3.0), (1.0, 2.0, 1.0), 4.0), rotated, ball])
     velocity = np.zeros_like(points)
     velocity[-len(ball):] = (0.0, 0.5, -0.2)
@@ -388,7 +382,7 @@ def test_a_turning_polytope_is_scored_at_its_nearest_reachable_place(dense):
     rng = np.random.default_rng(6)
     corners = 0.5 * np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)])
     box_points = np.concatenate([_box_surface(rng, (0.0, 0.0, 0.0), (1.0, 1.0, 1.0), 30.0), corners])
-    ball_points = _sphere_surface(rng, np.array([0.0, 0.0, 0.0]), 0.5, 30)
+    ball_points = sphere_surface(rng, np.array([0.0, 0.0, 0.0]), 0.5, 30)
     v = np.array([0.3, -0.2, 0.5])
     directions = rng.normal(size=(4000, 3))
     directions /= np.linalg.norm(directions, axis=1, keepdims=True)

@@ -19,6 +19,7 @@ from ncedf.safety import SafetyFilter
 from ncedf.sampling import NOMINAL_SLACK, Sampling, release_controls, sample_noise, smoothing_matrix
 from ncedf.shapes import make_shape
 from ncedf.temperature import MIN_ESS, TEMPERATURE_GRID, EffectiveSampleSize, Fixed, StallEscape, temperature_for_ess
+from solids import sphere_surface
 
 # One link bent at the largest rate for a long step (dt = 1 s): the tip sweeps from (0, 0, 2)
 # to about (-1.24, 0, 1.33), through a thin wall of points at x = -0.6 (z in [1.7, 2.4]) that
@@ -159,9 +160,7 @@ def test_the_check_scores_a_ball_moving_away_as_if_it_may_turn_back():
     """A still link beside a ball that moves away at 0.2 m/s: over a 1 s step the check takes the
     ball anywhere within 0.2 m of where it is (it may turn), so the clearance is the clearance now
     less 0.2 m, not the larger clearance where the ball is heading."""
-    rng = np.random.default_rng(3)
-    directions = rng.normal(size=(30, 3))
-    surface = np.array([0.9, 0.0, 1.5]) + 0.3 * directions / np.linalg.norm(directions, axis=1, keepdims=True)
+    surface = sphere_surface(np.random.default_rng(3), (0.9, 0.0, 1.5), 0.3, 30)
     ball = fit_polytopes(surface, 1.0, velocity=np.tile([0.2, 0.0, 0.0], (30, 1)))
     shape, arc = make_shape("exact", SPEC), jnp.asarray(ARC)
     frames = forward_kinematics(arc, SPEC)
