@@ -82,7 +82,9 @@ class RouteConfig:
       local_samples, local_radius: states drawn around the current one, each arc length moved by at
         most ``local_radius`` m (:func:`around`).
       neighbours: edges tried per node.
-      check_step: the most any arc length changes between checked states of an edge, m.
+      check_step: the most any arc length changes between checked states of an edge, m. Equal to
+        ``path_step`` (the default), every state of the route is a checked one; coarser, the body can
+        swing into an obstacle between two checked states and the safety check refuses the route there.
       node_clearance: least clearance of a node, m.
       edge_clearance: least clearance along an edge, m.
       goal_candidates: free nodes refined towards the goal.
@@ -102,7 +104,7 @@ class RouteConfig:
     local_samples: int = 1000
     local_radius: float = 0.1
     neighbours: int = 12
-    check_step: float = 0.01
+    check_step: float = 0.002
     node_clearance: float = 0.25
     edge_clearance: float = 0.2
     goal_candidates: int = 300

@@ -7,6 +7,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
 import ncedf.controller as controller_module
 import ncedf.route as route_module
@@ -58,6 +59,27 @@ def test_the_route_goes_round_the_bar_to_the_goal(polytopes):
     straight, _ = between(START[None], route[-1:], ROUTE.path_step)
     assert _exact(straight).min() < 0.0  # the straight way to the same end state crosses the bar
 
+
+
+@pytest.mark.parametrize("check_step, every_state_checked", [(RouteConfig().check_step, True), (0.01, False)])
+def test_every_state_of_the_route_was_checked_clear_at_the_default_check_step(polytopes, monkeypatch, check_step,
+                                                                              every_state_checked):
+    """The controller executes the route's states: each after the start is one the planner scored at
+    ``edge_clearance`` or more (the states between coarser checks were never scored)."""
+    scored = []
+
+    def recording(arcs, spec, model):
+        clear = clearances(arcs, spec, model)
+        scored.append((np.asarray(arcs).reshape(len(arcs), -1), clear))
+        return clear
+
+    monkeypatch.setattr(route_module, "clearances", recording)
+    config = dataclasses.replace(ROUTE, check_step=check_step)
+    route = plan_route(SPEC, polytopes, START, GOAL, jax.random.PRNGKey(0), config)
+    assert route is not None
+    checked = np.concatenate([arcs[clear >= config.edge_clearance] for arcs, clear in scored])
+    nearest, _ = cKDTree(checked).query(route[1:].reshape(len(route) - 1, -1))
+    assert np.all(nearest < 1e-5) == every_state_checked
 
 def test_no_route_to_a_goal_inside_the_bar(polytopes):
     assert plan_route(SPEC, polytopes, START, np.asarray(BAR.centre), jax.random.PRNGKey(0), ROUTE) is None
