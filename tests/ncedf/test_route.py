@@ -60,7 +60,6 @@ def test_the_route_goes_round_the_bar_to_the_goal(polytopes):
     assert _exact(straight).min() < 0.0  # the straight way to the same end state crosses the bar
 
 
-
 @pytest.mark.parametrize("check_step, every_state_checked", [(RouteConfig().check_step, True), (0.01, False)])
 def test_every_state_of_the_route_was_checked_clear_at_the_default_check_step(polytopes, monkeypatch, check_step,
                                                                               every_state_checked):
@@ -80,6 +79,7 @@ def test_every_state_of_the_route_was_checked_clear_at_the_default_check_step(po
     checked = np.concatenate([arcs[clear >= config.edge_clearance] for arcs, clear in scored])
     nearest, _ = cKDTree(checked).query(route[1:].reshape(len(route) - 1, -1))
     assert np.all(nearest < 1e-5) == every_state_checked
+
 
 def test_no_route_to_a_goal_inside_the_bar(polytopes):
     assert plan_route(SPEC, polytopes, START, np.asarray(BAR.centre), jax.random.PRNGKey(0), ROUTE) is None
