@@ -71,6 +71,8 @@ from ncedf.robot import RobotSpec, end_effector_pose, forward_kinematics, projec
 
 #: States per jitted clearance call (padded), so every call reuses one program.
 PASS = 4096
+#: Inner states of the edges checked in one batch (``edge_clearances``): 64 passes, a few tens of MB.
+EDGE_BATCH = 64 * PASS
 
 
 @dataclasses.dataclass(frozen=True)
@@ -253,10 +255,15 @@ def retraction_chains(targets: np.ndarray, goal: np.ndarray, approach: np.ndarra
     return np.concatenate(chain)
 
 
+def segment_parts(a: np.ndarray, b: np.ndarray, step: float) -> np.ndarray:
+    """(E,) the parts each segment from a to b (E, M, 3) is cut into, at most ``step`` apart in every arc length."""
+    return np.maximum(np.ceil(np.max(np.abs(b - a), axis=(1, 2)) / step).astype(int), 1)
+
+
 def between(a: np.ndarray, b: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
     """The states strictly inside the segments from a to b (E, M, 3), at most ``step`` apart in every arc
     length: ((S, M, 3) states, (S,) their segment's index), segment by segment."""
-    parts = np.maximum(np.ceil(np.max(np.abs(b - a), axis=(1, 2)) / step).astype(int), 1)  # (E,)
+    parts = segment_parts(a, b, step)
     edge = np.repeat(np.arange(len(a)), parts - 1)
     first = np.repeat(np.cumsum(parts - 1) - (parts - 1), parts - 1)
     t = ((np.arange(len(edge)) - first + 1) / np.repeat(parts, parts - 1))[:, None, None]
@@ -264,10 +271,17 @@ def between(a: np.ndarray, b: np.ndarray, step: float) -> tuple[np.ndarray, np.n
 
 
 def edge_clearances(a: np.ndarray, b: np.ndarray, spec: RobotSpec, polytopes: Polytopes, step: float) -> np.ndarray:
-    """(E,) the least clearance inside each segment from a to b (E, M, 3), checked ``step`` apart, m."""
-    along, edge = between(a, b, step)
+    """(E,) the least clearance inside each segment from a to b (E, M, 3), checked ``step`` apart, m; the
+    segments taken a batch of at most ``EDGE_BATCH`` inner states at a time (one segment at least), so that
+    checking every edge of a roadmap at once holds a batch's states in memory, not all of them."""
+    before = np.concatenate([[0], np.cumsum(segment_parts(a, b, step) - 1)])
     clear = np.full(len(a), np.inf, np.float32)
-    np.minimum.at(clear, edge, clearances(along, spec, polytopes))
+    start = 0
+    while start < len(a):
+        stop = max(start + 1, int(np.searchsorted(before, before[start] + EDGE_BATCH, side="right")) - 1)
+        along, edge = between(a[start:stop], b[start:stop], step)
+        np.minimum.at(clear, start + edge, clearances(along, spec, polytopes))
+        start = stop
     return clear
 
 

@@ -162,6 +162,22 @@ def test_lazy_checks_find_the_path_that_checking_every_edge_finds(polytopes, mon
         assert sum(checked[:1]) < len(i) // 10  # the first search checks only its path's edges
 
 
+@pytest.mark.parametrize("batch", [1, 37, 10**9])
+def test_edges_checked_in_batches_get_each_edges_least_clearance_over_all_its_states(polytopes, monkeypatch, batch):
+    nodes, i, j, _, _ = _roadmap(polytopes)
+    a, b = nodes[i[:60]], nodes[j[:60]]
+    states, segment = between(a, b, ROUTE.check_step)
+    scored = clearances(states, SPEC, polytopes)
+    expected = np.array([scored[segment == e].min() if np.any(segment == e) else np.inf for e in range(len(a))])
+    assert np.isfinite(expected).sum() > 50 and len(np.unique(segment)) > 50
+    monkeypatch.setattr(route_module, "EDGE_BATCH", batch)  # one segment a batch, a few, all at once
+    held = []
+    monkeypatch.setattr(route_module, "between", lambda *args: held.append(len(between(*args)[0])) or between(*args))
+    np.testing.assert_array_equal(route_module.edge_clearances(a, b, SPEC, polytopes, ROUTE.check_step), expected)
+    longest = np.bincount(segment).max()
+    assert max(held) <= max(batch, longest) and sum(held) == len(states)  # each state once, a batch at a time
+
+
 def test_states_around_a_state_are_valid_and_within_the_radius_at_every_scale():
     spec, radius = RobotSpec(4), 0.1
     start = np.asarray([[2.0, 2.0, 2.0], [1.8, 2.1, 2.1], [2.0, 1.9, 2.1], [2.2, 1.9, 1.9]], np.float32)
