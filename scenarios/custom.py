@@ -13,7 +13,8 @@ goal_position, offset, density, tolerance.
 
 The controller is the one every world gets (``ncedf.presets``): with
 ``--controller ours`` it closes the observed cloud's clusters where every still
-one is convex (a closed convex part), and keeps to the points where one is not.
+one is convex (a closed convex part), and closes the still points on a grid
+where one is not.
 """
 
 from __future__ import annotations
