@@ -232,6 +232,23 @@ def children(pid: int) -> set[int]:
     return {int(c) for task in Path(f"/proc/{pid}/task").iterdir() for c in (task / "children").read_text().split()}
 
 
+def spawned(pid: int) -> set[int]:
+    """The worker processes among the children of ``pid``."""
+    found = set()
+    for c in children(pid):
+        with contextlib.suppress(FileNotFoundError):  # one that exited meanwhile
+            if b"spawn_main" in Path(f"/proc/{c}/cmdline").read_bytes():
+                found.add(c)
+    return found
+
+
+def recording_open(pid: int) -> bool:
+    """Whether process ``pid`` holds a recording open."""
+    with contextlib.suppress(FileNotFoundError):
+        return any(os.readlink(fd).endswith(".mcap") for fd in Path(f"/proc/{pid}/fd").iterdir())
+    return False
+
+
 def alive(pid: int) -> bool:
     try:
         return Path(f"/proc/{pid}/stat").read_text().split(")")[-1].split()[0] != "Z"
@@ -284,21 +301,29 @@ def test_a_sweep_killed_midway_finishes_every_episode_once_when_run_again(swept,
 
 
 def test_a_dead_worker_is_replaced_and_the_sweep_finishes(swept, tmp_path):
-    """SIGKILL to the worker alone (as a crash) once an episode is complete: a fresh pool runs what
-    it left, and the sweep ends with every episode complete, exit status 0."""
+    """SIGKILL to one of two workers alone (as a crash) once an episode is complete: the broken pool's
+    other worker is stopped (it outlived the pool and wrote the episodes run again), a fresh pool runs
+    what the round left, and the sweep ends with every episode complete, exit status 0."""
     out = tmp_path / "runs"
     shutil.copytree(swept[0] / JAX_CACHE, out / JAX_CACHE)
-    stems = [out / episode_name(tiny(e)) for e in range(3)]
+    stems = [out / episode_name(tiny(e)) for e in range(4)]
     proc = subprocess.Popen([sys.executable, "-m", "scenarios.sweep", *TINY, "--max-steps", str(STEPS), "--envs",
-                             "3", "--workers", "1", "--out", str(out)], stdout=subprocess.PIPE,
+                             "4", "--workers", "2", "--out", str(out)], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, start_new_session=True)
     deadline = time.monotonic() + 120
-    while not any(read_complete(s, ("mcap",)) for s in stems) and time.monotonic() < deadline and proc.poll() is None:
-        time.sleep(0.02)
-    workers = [pid for pid in children(proc.pid) if b"spawn_main" in Path(f"/proc/{pid}/cmdline").read_bytes()]
-    assert len(workers) == 1
+    writing = {}
+    while len(writing) < 2 and time.monotonic() < deadline and proc.poll() is None:  # one worker mid-episode
+        writing = {pid: recording_open(pid) for pid in spawned(proc.pid)} if any(
+            read_complete(s, ("mcap",)) for s in stems) else {}
+        writing = writing if sum(map(bool, writing.values())) == 1 else {}
+        time.sleep(0.01)
+    workers = sorted(writing, key=lambda pid: bool(writing[pid]))  # the idle one first
+    assert len(workers) == 2
     os.kill(workers[0], signal.SIGKILL)
     try:
+        while not spawned(proc.pid) - set(workers) and time.monotonic() < deadline and proc.poll() is None:
+            time.sleep(0.01)
+        outlived = alive(workers[1])  # when the fresh pool starts
         _, stderr = proc.communicate(timeout=240)
     finally:
         with contextlib.suppress(ProcessLookupError):
@@ -306,6 +331,7 @@ def test_a_dead_worker_is_replaced_and_the_sweep_finishes(swept, tmp_path):
     assert proc.returncode == 0, stderr
     assert re.search(r"a worker process died .*; \d episodes run again", stderr)
     assert all(read_complete(s, ("mcap",)) for s in stems)
+    assert not outlived
 
 
 def test_recycled_workers_finish_the_sweep(swept, tmp_path):
