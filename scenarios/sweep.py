@@ -305,7 +305,7 @@ def _run_local(todo: list[EpisodeSettings], out: Path, formats, workers: int, re
 
     Workers are recycled by running rounds of ``workers * recycle`` episodes, each in a fresh pool:
     ``max_tasks_per_child`` deadlocks once a worker reaches its limit (CPython gh-115634, 3.11-3.14).
-    Where a worker dies (a crash, a kill), the round's other workers are stopped and the episodes it
+    Where a worker dies (a crash, a kill), the round's other workers are killed and the episodes it
     left unfinished run again in a fresh pool, at most ``WORKER_DEATHS`` times (then SweepError).
     """
     out.mkdir(parents=True, exist_ok=True)
@@ -351,9 +351,18 @@ def _run_round(todo: list[EpisodeSettings], out: Path, formats, workers: int, ca
         return left + [futures[f] for f in pending] if left else []
     finally:
         pool.shutdown(wait=False, cancel_futures=True)
-        if pending or left:  # a broken pool's workers outlive it: an episode's SIGTERM handler keeps them
+        if left:  # a broken pool's other workers outlive it (an episode's SIGTERM handler keeps them)
+            _kill_workers(set(multiprocessing.active_children()) - before)
+        elif pending:
             _stop_workers(set(multiprocessing.active_children()) - before)
         pool.shutdown(wait=True)
+
+
+def _kill_workers(workers) -> None:
+    """SIGKILL: the episodes they run are run again (their recordings are overwritten)."""
+    for process in workers:
+        process.kill()
+        process.join()
 
 
 def _stop_workers(workers) -> None:

@@ -302,7 +302,7 @@ def test_a_sweep_killed_midway_finishes_every_episode_once_when_run_again(swept,
 
 def test_a_dead_worker_is_replaced_and_the_sweep_finishes(swept, tmp_path):
     """SIGKILL to one of two workers alone (as a crash) once an episode is complete: the broken pool's
-    other worker is stopped (it outlived the pool and wrote the episodes run again), a fresh pool runs
+    other worker is killed (it outlived the pool and wrote the episodes run again), a fresh pool runs
     what the round left, and the sweep ends with every episode complete, exit status 0."""
     out = tmp_path / "runs"
     shutil.copytree(swept[0] / JAX_CACHE, out / JAX_CACHE)
