@@ -3,9 +3,7 @@
 A box of 0.1 m walls open towards the robot (-x): its cavity x in [3, 4.6] m, 1.8 m wide, 1.6 m
 high, centred at y ~ U(-1, 1) with its floor at z ~ U(2, 3.5) (drawn from ``env_seed``). The goal is
 in the cavity, 0.5 m before the back wall, halfway up. One closed mesh (five overlapping slabs,
-``scenarios.solids``), observed at ``DENSITY`` points per square metre: at the paper's 4 the holes
-between samples (about 1.1 m across) are as wide as the openings, which no model of the points can
-tell apart.
+``scenarios.solids``), observed at ``scenarios.solids.DENSITY`` points per square metre.
 
     python -m scenarios.cabinet --links 5 --env-seed 3
 """
@@ -16,13 +14,12 @@ import numpy as np
 
 from scenarios.cli import scenario_main
 from scenarios.episode import EpisodeSettings, Scene, fixed_goal_scene
-from scenarios.solids import draw, obstacle, slab
+from scenarios.solids import DENSITY, draw, obstacle, slab
 from scenarios.world import World
 
 CAVITY_X = (3.0, 4.6)
 WIDTH, HEIGHT, WALL = 1.8, 1.6, 0.1
 PLACE_RANGES = ((-1.0, 1.0), (2.0, 3.5))  # cavity centre y, floor z
-DENSITY = 16.0  # see the module docstring
 TOLERANCE = 0.3
 MAX_STEPS = 300
 

@@ -3,7 +3,9 @@
 The obstacle is read by ``scenarios.obstacle_file.load_obstacle`` (trimesh: .stl .obj
 .ply .off .glb ...; a .ply without faces, .xyz or .npy is a bare point cloud),
 shifted by ``--offset``. Mesh surfaces are observed at ``--density`` points per
-square metre; a cloud's points are observed as they are. The robot's base is
+square metre, by default the confined worlds' (``scenarios.solids.DENSITY``), at
+which an opening the robot fits through is wider than the holes between the
+samples; a cloud's points are observed as they are. The robot's base is
 the origin, its first tangent +z (it starts straight up, 2 m per link).
 
     python -m scenarios.custom --obstacles part.stl --offset 3,0,2 --goal 4,0,4
@@ -25,9 +27,9 @@ from scenarios.cli import base_settings, make_parser, run_cli
 from scenarios.episode import (EpisodeSettings, Scene, make_scene, option_positive, option_vector,
                                require_fixed_goal, scenario_options)
 from scenarios.obstacle_file import load_obstacle
+from scenarios.solids import DENSITY
 from scenarios.world import CloudObstacle, World
 
-DENSITY = 4.0
 TOLERANCE = 0.2
 MAX_STEPS = 300
 OPTIONS = ("obstacles", "goal_position", "offset", "density", "tolerance")

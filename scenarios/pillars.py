@@ -3,8 +3,7 @@
 Nine upright cylinders of radius 0.25 m and 8 m height on a 3 x 3 grid (x in {2, 3, 4} m, y in
 {-1.5, 0, 1.5}), each moved by up to 0.3 m in x and y; the goal at x = 5, y ~ U(-1, 1), z ~ U(2, 4)
 (all drawn from ``env_seed``). One closed mesh (nine pillars, ``scenarios.solids``), observed at
-``DENSITY`` points per square metre: at the paper's 4 the holes between samples (about 1.1 m across)
-are as wide as the openings, which no model of the points can tell apart.
+``scenarios.solids.DENSITY`` points per square metre.
 
     python -m scenarios.pillars --links 5 --env-seed 3
 """
@@ -15,7 +14,7 @@ import numpy as np
 
 from scenarios.cli import scenario_main
 from scenarios.episode import EpisodeSettings, Scene, fixed_goal_scene
-from scenarios.solids import draw, obstacle, pillar
+from scenarios.solids import DENSITY, draw, obstacle, pillar
 from scenarios.world import World
 
 GRID_X = (2.0, 3.0, 4.0)
@@ -24,7 +23,6 @@ JITTER = 0.3
 RADIUS, HEIGHT = 0.25, 8.0
 GOAL_RANGES = ((-1.0, 1.0), (2.0, 4.0))  # goal y, z
 GOAL_X = 5.0
-DENSITY = 16.0  # see the module docstring
 TOLERANCE = 0.3
 MAX_STEPS = 300
 

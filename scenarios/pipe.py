@@ -3,9 +3,7 @@
 A straight pipe along +x from x = 3 to 6 m, inner radius ``INNER`` (room for the robot's 0.4 m
 diameter and a margin), 0.1 m wall, its axis at y ~ U(-1, 1), z ~ U(2.5, 4) (drawn from
 ``env_seed``). The goal is on the axis 1 m inside. One closed mesh (an annular solid,
-``scenarios.solids``), observed at ``DENSITY`` points per square metre: at the paper's 4 the holes
-between samples (about 1.1 m across) are as wide as the openings, which no model of the points can
-tell apart.
+``scenarios.solids``), observed at ``scenarios.solids.DENSITY`` points per square metre.
 
     python -m scenarios.pipe --links 5 --env-seed 3
 """
@@ -16,14 +14,13 @@ import numpy as np
 
 from scenarios.cli import scenario_main
 from scenarios.episode import EpisodeSettings, Scene, fixed_goal_scene
-from scenarios.solids import draw, obstacle, tube
+from scenarios.solids import DENSITY, draw, obstacle, tube
 from scenarios.world import World
 
 PIPE_X = (3.0, 6.0)
 INNER, OUTER = 0.7, 0.8
 AXIS_RANGES = ((-1.0, 1.0), (2.5, 4.0))  # axis y, z
 DEPTH = 1.0
-DENSITY = 16.0  # see the module docstring
 TOLERANCE = 0.3
 MAX_STEPS = 300
 

@@ -2,9 +2,8 @@
 
 Two horizontal slabs x in [3, 6] m, y in [-3, 3], 0.2 m thick, with a gap of ``GAP`` m between them
 centred at z ~ U(2.5, 4); the goal is in the gap's middle plane 1.5 m in, at y ~ U(-1, 1) (both
-drawn from ``env_seed``). One closed mesh (two slabs, ``scenarios.solids``), observed at ``DENSITY``
-points per square metre: at the paper's 4 the holes between samples (about 1.1 m across) are as wide
-as the openings, which no model of the points can tell apart.
+drawn from ``env_seed``). One closed mesh (two slabs, ``scenarios.solids``), observed at
+``scenarios.solids.DENSITY`` points per square metre.
 
     python -m scenarios.slot --links 5 --env-seed 3
 """
@@ -15,7 +14,7 @@ import numpy as np
 
 from scenarios.cli import scenario_main
 from scenarios.episode import EpisodeSettings, Scene, fixed_goal_scene
-from scenarios.solids import draw, obstacle, slab
+from scenarios.solids import DENSITY, draw, obstacle, slab
 from scenarios.world import World
 
 SLAB_X = (3.0, 6.0)
@@ -23,7 +22,6 @@ SLAB_Y = (-3.0, 3.0)
 GAP, THICKNESS = 1.0, 0.2
 PLACE_RANGES = ((2.5, 4.0), (-1.0, 1.0))  # gap centre z, goal y
 DEPTH = 1.5
-DENSITY = 16.0  # see the module docstring
 TOLERANCE = 0.3
 MAX_STEPS = 300
 

@@ -3,9 +3,8 @@
 The wall is a slab x in [3, 3.3] m, y in [-4, 4], z in [0, 14] (too tall for seven links to reach
 over), with a square window of ``WINDOW`` m whose centre y ~ U(-1, 1), z ~ U(3, 4.5) is drawn from
 ``env_seed``; the goal is 1 m behind the wall at the window's centre. The wall is one closed mesh
-(four overlapping slabs, ``scenarios.solids``), observed at ``DENSITY`` points per square metre: at
-the paper's 4 the holes between samples (about 1.1 m across) are as wide as the openings, which no
-model of the points can tell apart.
+(four overlapping slabs, ``scenarios.solids``), observed at ``scenarios.solids.DENSITY`` points per
+square metre.
 
     python -m scenarios.window --links 5 --env-seed 3
 """
@@ -16,7 +15,7 @@ import numpy as np
 
 from scenarios.cli import scenario_main
 from scenarios.episode import EpisodeSettings, Scene, fixed_goal_scene
-from scenarios.solids import draw, obstacle, slab
+from scenarios.solids import DENSITY, draw, obstacle, slab
 from scenarios.world import World
 
 WALL_X = (3.0, 3.3)
@@ -25,7 +24,6 @@ WALL_HEIGHT = 14.0
 WINDOW = 1.2
 CENTRE_RANGES = ((-1.0, 1.0), (3.0, 4.5))  # window centre y, z
 BEHIND = 1.0
-DENSITY = 16.0  # see the module docstring
 TOLERANCE = 0.3
 MAX_STEPS = 300
 
