@@ -1,4 +1,4 @@
-"""The solids the confined-space worlds are built of, as closed triangle meshes, and their seeds.
+"""The solids the confined-space worlds are built of, as closed triangle meshes, their seeds and density.
 
 Pieces of one obstacle overlap by ``OVERLAP`` instead of touching, so that each stays a closed
 mesh of its own (touching faces would share edges between four faces); the obstacle is their
