@@ -351,26 +351,18 @@ def _run_round(todo: list[EpisodeSettings], out: Path, formats, workers: int, ca
         return left + [futures[f] for f in pending] if left else []
     finally:
         pool.shutdown(wait=False, cancel_futures=True)
-        if left:  # a broken pool's other workers outlive it (an episode's SIGTERM handler keeps them)
-            _kill_workers(set(multiprocessing.active_children()) - before)
-        elif pending:
-            _stop_workers(set(multiprocessing.active_children()) - before)
+        if left or pending:  # a broken pool's workers outlive it (an episode's SIGTERM handler keeps them);
+            # they get no grace: the episodes they run are run again
+            _stop_workers(set(multiprocessing.active_children()) - before, 0.0 if left else STOP_GRACE_S)
         pool.shutdown(wait=True)
 
 
-def _kill_workers(workers) -> None:
-    """SIGKILL: the episodes they run are run again (their recordings are overwritten)."""
-    for process in workers:
-        process.kill()
-        process.join()
-
-
-def _stop_workers(workers) -> None:
+def _stop_workers(workers, grace: float) -> None:
     """SIGTERM: each worker's recorder records the current step and closes; kill those still running after
-    `STOP_GRACE_S`."""
+    ``grace`` seconds."""
     for process in workers:
         process.terminate()
-    deadline = time.monotonic() + STOP_GRACE_S
+    deadline = time.monotonic() + grace
     for process in workers:
         process.join(max(0.0, deadline - time.monotonic()))
         if process.is_alive():

@@ -311,13 +311,13 @@ def test_a_dead_worker_is_replaced_and_the_sweep_finishes(swept, tmp_path):
                              "4", "--workers", "2", "--out", str(out)], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, start_new_session=True)
     deadline = time.monotonic() + 120
-    writing = {}
-    while len(writing) < 2 and time.monotonic() < deadline and proc.poll() is None:  # one worker mid-episode
-        writing = {pid: recording_open(pid) for pid in spawned(proc.pid)} if any(
-            read_complete(s, ("mcap",)) for s in stems) else {}
-        writing = writing if sum(map(bool, writing.values())) == 1 else {}
+    workers = []  # once an episode is complete: one worker idle, the other recording (mid-episode)
+    while len(workers) < 2 and time.monotonic() < deadline and proc.poll() is None:
         time.sleep(0.01)
-    workers = sorted(writing, key=lambda pid: bool(writing[pid]))  # the idle one first
+        if any(read_complete(s, ("mcap",)) for s in stems):
+            writing = {pid: recording_open(pid) for pid in spawned(proc.pid)}
+            if sum(writing.values()) == 1:
+                workers = sorted(writing, key=writing.get)  # the idle one first
     assert len(workers) == 2
     os.kill(workers[0], signal.SIGKILL)
     try:
