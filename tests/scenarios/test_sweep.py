@@ -229,7 +229,12 @@ def test_ctrl_c_keeps_complete_episodes_and_the_same_command_finishes_the_sweep(
 
 
 def children(pid: int) -> set[int]:
-    return {int(c) for task in Path(f"/proc/{pid}/task").iterdir() for c in (task / "children").read_text().split()}
+    """The child processes of ``pid``, over its threads."""
+    found = set()
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        with contextlib.suppress(FileNotFoundError, ProcessLookupError):  # a thread that ended meanwhile
+            found.update(int(c) for c in (task / "children").read_text().split())
+    return found
 
 
 def spawned(pid: int) -> set[int]:
