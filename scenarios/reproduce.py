@@ -21,9 +21,10 @@ package versions (quick results are marked there and in every table).
   pointcloud:5000 x every controller of ``ncedf.presets.PRESETS``
   (``--envs`` environments; ``--envs-5000`` for pointcloud:5000), then the floor's verdict
   (``scenarios.floor``) on every environment no episode solved.
-* Table IV: cluttered, 4 / 5 / 7 links x ``--seeds`` seeds x every controller.
+* Table IV: cluttered, 4 / 5 / 7 links x ``--seeds`` controller seeds x ``--env-seeds`` environment
+  seeds (the observed points) x every controller.
 * worlds (beyond the paper's): the charging port and the confined-space runners (window, cabinet,
-  pipe, slot, pillars), 4 / 5 / 7 links x ``--seeds`` environment seeds x ours and paper (the
+  pipe, slot, pillars), 4 / 5 / 7 links x ``--env-seeds`` environment seeds x ours and paper (the
   solver-time reference, at the same rollouts and horizon).
 * timing (the MPPI time figures): one step of the paper's controller (800 samples, horizon 20) per
   representation, against link count (4 / 5 / 7 at 500 points) and obstacle points (100 ... 5000 at
@@ -116,12 +117,14 @@ class TimingBudget:
 @dataclasses.dataclass(frozen=True)
 class EpisodeBudget:
     """The episodes: Table III ``envs`` (``envs_5000`` for pointcloud:5000), Table IV's controller
-    ``seeds`` and the worlds' environment seeds, overrides of every episode's ``samples``, ``horizon``
-    and ``max_steps`` (None: the controller's and scenario's), and sweep ``workers`` (None: one per core)."""
+    ``seeds``, the ``env_seeds`` of Table IV and the worlds, overrides of every episode's ``samples``,
+    ``horizon`` and ``max_steps`` (None: the controller's and scenario's), and sweep ``workers`` (None:
+    one per core)."""
 
     envs: int = 200
     envs_5000: int = 50
-    seeds: int = 10
+    seeds: int = 20
+    env_seeds: int = 10
     samples: int | None = None
     horizon: int | None = None
     max_steps: int | None = None
@@ -143,7 +146,7 @@ QUICK = Budget(
                   layers=(2, 4), widths=(16,)),
     TimingBudget(repeats=3, samples=64, horizon=8, shapes=("ncedf", "spheres", "pointcloud:1000"), links=(4, 7),
                  points=(250, 1000)),
-    EpisodeBudget(envs=1, envs_5000=1, seeds=1, samples=64, horizon=8, max_steps=10),
+    EpisodeBudget(envs=1, envs_5000=1, seeds=1, env_seeds=1, samples=64, horizon=8, max_steps=10),
     quick=True)
 
 
@@ -338,9 +341,10 @@ def sweep_episodes(table: str, budget: Budget):
     if table == "worlds":
         from scenarios import WORLDS
 
-        return sweep_settings(list(WORLDS), list(TABLE4_LINKS), ["ncedf"], WORLD_CONTROLLERS, budget.episodes.seeds, 1,
-                              **common)
-    return sweep_settings(["cluttered"], list(TABLE4_LINKS), ["ncedf"], controllers, 1, budget.episodes.seeds, **common)
+        return sweep_settings(list(WORLDS), list(TABLE4_LINKS), ["ncedf"], WORLD_CONTROLLERS,
+                              budget.episodes.env_seeds, 1, **common)
+    return sweep_settings(["cluttered"], list(TABLE4_LINKS), ["ncedf"], controllers, budget.episodes.env_seeds,
+                          budget.episodes.seeds, **common)
 
 
 def run_episodes(table: str, out: Path, budget: Budget, seed: int, command: str, executor: str = "local",
@@ -426,7 +430,9 @@ def parse_args(argv=None):
     p.add_argument("--envs", type=int, help=f"Table III environments per representation (default {EpisodeBudget.envs})")
     p.add_argument("--envs-5000", type=int, metavar="N",
                    help=f"Table III environments for pointcloud:5000 (default {EpisodeBudget.envs_5000})")
-    p.add_argument("--seeds", type=int, help=f"Table IV seeds (default {EpisodeBudget.seeds})")
+    p.add_argument("--seeds", type=int, help=f"Table IV controller seeds (default {EpisodeBudget.seeds})")
+    p.add_argument("--env-seeds", type=int, metavar="N",
+                   help=f"environment seeds of Table IV and the worlds (default {EpisodeBudget.env_seeds})")
     p.add_argument("--timing-repeats", type=int, metavar="N",
                    help=f"timed steps per network or timing case (default {TimingBudget.repeats}, "
                         f"quick {QUICK.timing.repeats})")
@@ -440,7 +446,7 @@ def parse_args(argv=None):
 
 #: The command-line options that override a budget: option -> (part of the budget, its field).
 OVERRIDES = {"epochs": ("networks", "epochs"), "envs": ("episodes", "envs"), "envs_5000": ("episodes", "envs_5000"),
-             "seeds": ("episodes", "seeds"), "workers": ("episodes", "workers"),
+             "seeds": ("episodes", "seeds"), "env_seeds": ("episodes", "env_seeds"), "workers": ("episodes", "workers"),
              "timing_repeats": ("timing", "repeats")}
 
 

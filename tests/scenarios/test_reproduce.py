@@ -1,0 +1,31 @@
+"""scenarios.reproduce: the episodes a budget asks for, and its options' errors."""
+
+from collections import Counter
+
+from scenarios import WORLDS
+from scenarios.reproduce import TABLE4_LINKS, budget_from, main, parse_args, sweep_episodes
+
+
+def test_table4_runs_every_controller_seed_in_every_environment_once():
+    budget = budget_from(parse_args(["table4", "--seeds", "2", "--env-seeds", "3"]))
+    episodes = sweep_episodes("table4", budget)
+    keys = Counter((s.scenario, s.links, s.controller, s.env_seed, s.seed) for s in episodes)
+    assert set(keys.values()) == {1}
+    assert {k[0] for k in keys} == {"cluttered"} and {k[1] for k in keys} == set(TABLE4_LINKS)
+    assert {k[3] for k in keys} == {0, 1, 2} and {k[4] for k in keys} == {0, 1}
+    assert len(keys) == len(TABLE4_LINKS) * len({k[2] for k in keys}) * 3 * 2
+
+
+def test_the_worlds_run_the_environment_seeds_with_one_controller_seed():
+    budget = budget_from(parse_args(["worlds", "--seeds", "5", "--env-seeds", "2"]))
+    episodes = sweep_episodes("worlds", budget)
+    assert {s.scenario for s in episodes} == set(WORLDS)
+    assert {s.env_seed for s in episodes} == {0, 1} and {s.seed for s in episodes} == {0}
+
+
+def test_an_option_below_one_is_a_one_line_error_and_writes_nothing(tmp_path, capsys):
+    out = tmp_path / "runs"
+    assert main(["table4", "--env-seeds", "0", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == "error: --env-seeds must be >= 1, got 0"
+    assert not out.exists()
