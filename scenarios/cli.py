@@ -94,6 +94,8 @@ def summary(result: EpisodeResult) -> str:
     """Lines describing the outcome, solver time, clearance and the files written."""
     if result.outcome == "success":
         head = f"outcome: success, goal reached at step {result.reach_step}"
+    elif result.outcome == "collision" and result.steps == 0:
+        head = "outcome: collision at the start: the robot's start pose overlaps an obstacle"
     elif result.outcome == "collision":
         head = f"outcome: collision in step {result.first_collision_step}"
     else:

@@ -1,6 +1,7 @@
 """Scenario runners: a CLI end to end, one-line errors, presets, and the scenes against docs/paper-setups.md."""
 
 import dataclasses
+import math
 import os
 import signal
 
@@ -17,7 +18,8 @@ from recorder import inspect as recorder_inspect
 from recorder import load_run
 from scenarios import charging, cluttered, custom, spheres
 from scenarios import episode as episode_mod
-from scenarios.episode import Episode, EpisodeSettings
+from scenarios.cli import summary
+from scenarios.episode import Episode, EpisodeResult, EpisodeSettings
 from scenarios.truth import true_min_distance
 from test_world import box_sdf_np
 
@@ -110,6 +112,14 @@ def test_custom_runner_names_a_bad_obstacle_file_or_goal(tmp_path, capsys):
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and named in err
     assert not (tmp_path / "new").exists()
+
+
+def test_the_summary_tells_a_collision_at_the_start_from_one_during_a_step():
+    at_start = EpisodeResult("collision", 0, None, -0.2, 0, math.nan, math.nan, 4.0)
+    during = dataclasses.replace(at_start, steps=3, first_collision_step=2, solver_ms_mean=50.0, solver_ms_std=1.0)
+    assert summary(at_start).splitlines()[0] == ("outcome: collision at the start: the robot's start pose overlaps "
+                                                 "an obstacle (0 MPPI steps)")
+    assert summary(during).splitlines()[0] == "outcome: collision in step 2 (3 MPPI steps)"
 
 
 # ---------------------------------------------------------------- presets
