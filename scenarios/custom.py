@@ -21,7 +21,12 @@ where one is not.
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
+
+import numpy as np
+
+from ncedf.robot import BASE
 
 from scenarios.cli import base_settings, make_parser, run_cli
 from scenarios.episode import (EpisodeSettings, Scene, make_scene, option_positive, option_vector,
@@ -51,7 +56,12 @@ def build(settings: EpisodeSettings) -> Scene:
         world = World(clouds=(obstacle,), density=density)
     else:
         world = World(meshes=(obstacle,), density=density)
-    return make_scene(settings, world, goal, tolerance, MAX_STEPS)
+    scene = make_scene(settings, world, goal, tolerance, MAX_STEPS)
+    far, length = float(np.linalg.norm(scene.goal - BASE)), scene.spec.n_links * scene.spec.length
+    if far > length + scene.tolerance:
+        warnings.warn(f"the goal {options['goal_position']} lies {far:.2f} m from the robot's base, beyond its "
+                      f"length of {length:.2f} m: it cannot be reached", stacklevel=2)
+    return scene
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -4,6 +4,7 @@ import dataclasses
 import math
 import os
 import signal
+import warnings
 
 import jax
 import jax.numpy as jnp
@@ -112,6 +113,21 @@ def test_custom_runner_names_a_bad_obstacle_file_or_goal(tmp_path, capsys):
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and named in err
     assert not (tmp_path / "new").exists()
+
+
+def test_custom_runner_warns_of_a_goal_beyond_the_robots_length(tmp_path):
+    cloud = tmp_path / "cloud.npy"
+    np.save(cloud, np.array([[3.0, 0.0, 3.0]]))
+
+    def settings(goal: str, links: int) -> EpisodeSettings:
+        return EpisodeSettings("custom", links, 0, options=(("obstacles", str(cloud)), ("goal_position", goal)))
+
+    with pytest.warns(UserWarning, match=r"9.00 m from the robot's base, beyond its length of 8.00 m"):
+        custom.build(settings("0,0,9", 4))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        custom.build(settings("0,0,8.1", 4))  # within the tolerance of the tip's farthest reach
+        custom.build(settings("0,0,9", 5))
 
 
 def test_the_summary_tells_a_collision_at_the_start_from_one_during_a_step():
