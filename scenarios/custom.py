@@ -6,7 +6,8 @@ shifted by ``--offset``. Mesh surfaces are observed at ``--density`` points per
 square metre, by default the confined worlds' (``scenarios.solids.DENSITY``), at
 which an opening the robot fits through is wider than the holes between the
 samples; a cloud's points are observed as they are. The robot's base is
-the origin, its first tangent +z (it starts straight up, 2 m per link).
+the origin, its first tangent +z (it starts straight up, 2 m per link). A goal that no motion
+reaches (beyond the robot's length, inside the obstacle, or too near it for the tip) is warned of.
 
     python -m scenarios.custom --obstacles part.stl --offset 3,0,2 --goal 4,0,4
 
@@ -57,11 +58,31 @@ def build(settings: EpisodeSettings) -> Scene:
     else:
         world = World(meshes=(obstacle,), density=density)
     scene = make_scene(settings, world, goal, tolerance, MAX_STEPS)
+    warn_of_the_goal(scene, options["goal_position"])
+    return scene
+
+
+def warn_of_the_goal(scene: Scene, named: str) -> None:
+    """Warn of a goal (``named`` as the user gave it) that no motion reaches: farther from the base than
+    the robot's length, inside the (closed) obstacle, or nearer to it than the tip's radius less the
+    goal tolerance (the tip's end disk would touch it)."""
     far, length = float(np.linalg.norm(scene.goal - BASE)), scene.spec.n_links * scene.spec.length
     if far > length + scene.tolerance:
-        warnings.warn(f"the goal {options['goal_position']} lies {far:.2f} m from the robot's base, beyond its "
-                      f"length of {length:.2f} m: it cannot be reached", stacklevel=2)
-    return scene
+        warnings.warn(f"the goal {named} lies {far:.2f} m from the robot's base, beyond its length of {length:.2f} m: "
+                      "it cannot be reached", stacklevel=3)
+    goal = scene.goal[None]
+    if scene.world.clouds:
+        inside, near = False, float(np.linalg.norm(np.asarray(scene.world.clouds[0].points) - goal, axis=-1).min())
+    else:
+        mesh = scene.world.meshes[0]
+        inside, near = mesh.closed and bool(mesh.index.inside(goal)[0]), float(mesh.index.distance(goal)[0][0])
+    tip = float(np.atleast_1d(scene.spec.radius)[-1])
+    if inside:
+        warnings.warn(f"the goal {named} lies inside the obstacle: it cannot be reached", stacklevel=3)
+    elif near + scene.tolerance < tip:
+        warnings.warn(f"the goal {named} lies {near:.2f} m from the obstacle: the robot's tip, of radius {tip:.2f} m, "
+                      f"cannot come within the goal tolerance of {scene.tolerance:.2f} m without touching it",
+                      stacklevel=3)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -10,6 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import trimesh
 
 from ncedf.geometry import robot_mesh_arrays
 from ncedf.grid_model import GridModel, goal_open
@@ -115,19 +116,31 @@ def test_custom_runner_names_a_bad_obstacle_file_or_goal(tmp_path, capsys):
     assert not (tmp_path / "new").exists()
 
 
-def test_custom_runner_warns_of_a_goal_beyond_the_robots_length(tmp_path):
-    cloud = tmp_path / "cloud.npy"
+def test_custom_runner_warns_of_a_goal_no_motion_reaches(tmp_path):
+    """Beyond the robot's length (8 m with 4 links, plus the tolerance), inside a closed mesh, or too near
+    a point for the tip's radius (0.2 m) less the tolerance; none for goals that pass each test."""
+    cloud, box = tmp_path / "cloud.npy", tmp_path / "box.stl"
     np.save(cloud, np.array([[3.0, 0.0, 3.0]]))
+    trimesh.creation.box(extents=(1.0, 1.0, 1.0), transform=trimesh.transformations.translation_matrix(
+        (4.0, 0.0, 4.0))).export(box)
 
-    def settings(goal: str, links: int) -> EpisodeSettings:
-        return EpisodeSettings("custom", links, 0, options=(("obstacles", str(cloud)), ("goal_position", goal)))
+    def build(obstacles, goal: str, links: int = 4, tolerance: str = "0.2"):
+        return custom.build(EpisodeSettings("custom", links, 0, options=(
+            ("obstacles", str(obstacles)), ("goal_position", goal), ("tolerance", tolerance))))
 
-    with pytest.warns(UserWarning, match=r"9.00 m from the robot's base, beyond its length of 8.00 m"):
-        custom.build(settings("0,0,9", 4))
+    for obstacles, goal, tolerance, message in [
+            (cloud, "0,0,9", "0.2", "9.00 m from the robot's base, beyond its length of 8.00 m"),
+            (box, "4,0,4", "0.2", "inside the obstacle"),
+            (box, "4,0,4.55", "0.1", "0.05 m from the obstacle: the robot's tip, of radius 0.20 m"),
+            (cloud, "3,0,3.05", "0.1", "0.05 m from the obstacle")]:
+        with pytest.warns(UserWarning, match=message):
+            build(obstacles, goal, tolerance=tolerance)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        custom.build(settings("0,0,8.1", 4))  # within the tolerance of the tip's farthest reach
-        custom.build(settings("0,0,9", 5))
+        build(cloud, "0,0,8.1")  # within the tolerance of the tip's farthest reach
+        build(cloud, "0,0,9", links=5)
+        build(cloud, "3,0,3.05")  # the tip's end 0.2 m off the point is within the tolerance of the goal
+        build(box, "4,0,4.75", tolerance="0.1")
 
 
 def test_the_summary_tells_a_collision_at_the_start_from_one_during_a_step():
