@@ -8,6 +8,8 @@ which an opening the robot fits through is wider than the holes between the
 samples; a cloud's points are observed as they are. The robot's base is
 the origin, its first tangent +z (it starts straight up, 2 m per link). A goal that no motion
 reaches (beyond the robot's length, inside the obstacle, or too near it for the tip) is warned of.
+An obstacle observed at more than ``MAX_OBSERVED`` points is refused (coordinates are metres: a
+file in millimetres is a million times too large in area).
 
     python -m scenarios.custom --obstacles part.stl --offset 3,0,2 --goal 4,0,4
 
@@ -39,6 +41,9 @@ from scenarios.world import CloudObstacle, World
 TOLERANCE = 0.2
 MAX_STEPS = 300
 OPTIONS = ("obstacles", "goal_position", "offset", "density", "tolerance")
+#: The most points a custom world may be observed at: the controller scores every one each step (the
+#: worlds here: hundreds to a few thousand).
+MAX_OBSERVED = 50_000
 
 
 def build(settings: EpisodeSettings) -> Scene:
@@ -53,6 +58,7 @@ def build(settings: EpisodeSettings) -> Scene:
     density = option_positive("density", options.get("density", str(DENSITY)))
     tolerance = option_positive("tolerance", options.get("tolerance", str(TOLERANCE)))
     obstacle = load_obstacle(options["obstacles"], offset)
+    check_observed_count(obstacle, density, options["obstacles"])
     if isinstance(obstacle, CloudObstacle):
         world = World(clouds=(obstacle,), density=density)
     else:
@@ -60,6 +66,22 @@ def build(settings: EpisodeSettings) -> Scene:
     scene = make_scene(settings, world, goal, tolerance, MAX_STEPS)
     warn_of_the_goal(scene, options["goal_position"])
     return scene
+
+
+def check_observed_count(obstacle, density: float, named: str) -> None:
+    """ValueError where the obstacle would be observed at more than ``MAX_OBSERVED`` points: a cloud's
+    own points, or a mesh's area times ``density`` (a file in millimetres read as metres is a million
+    times too large)."""
+    if isinstance(obstacle, CloudObstacle):
+        if len(obstacle.points) > MAX_OBSERVED:
+            raise ValueError(f"{named}: {len(obstacle.points)} points, more than the {MAX_OBSERVED} a world may be "
+                             "observed at: downsample the cloud")
+        return
+    count = round(obstacle.area * density)
+    if count > MAX_OBSERVED:
+        raise ValueError(f"{named}: {obstacle.area:.4g} m^2 of surface at {density:g} points per m^2 is {count} "
+                         f"observed points, more than {MAX_OBSERVED}: coordinates are read as metres (is the file "
+                         "in millimetres?); else lower --density")
 
 
 def warn_of_the_goal(scene: Scene, named: str) -> None:

@@ -105,11 +105,15 @@ def test_bad_values_exit_2_with_one_line_and_write_nothing(tmp_path, capsys, arg
 
 
 def test_custom_runner_names_a_bad_obstacle_file_or_goal(tmp_path, capsys):
-    cloud = tmp_path / "cloud.npy"
+    cloud, dense, part = tmp_path / "cloud.npy", tmp_path / "dense.npy", tmp_path / "part_mm.stl"
     np.save(cloud, np.array([[3.0, 0.0, 3.0]]))
+    np.save(dense, np.random.default_rng(0).uniform(2.0, 6.0, (custom.MAX_OBSERVED + 1, 3)))
+    trimesh.creation.box(extents=(100.0, 100.0, 100.0)).export(part)  # a 10 cm cube in millimetres: 6e4 m^2
     for argv, named in [(["--obstacles", str(tmp_path / "missing.stl"), "--goal", "4,0,4"], "missing.stl"),
                         (["--obstacles", str(cloud), "--goal", "4,0"], "4,0"),
-                        (["--obstacles", str(cloud), "--goal", "4,0,4", "--density", "-1"], "-1")]:
+                        (["--obstacles", str(cloud), "--goal", "4,0,4", "--density", "-1"], "-1"),
+                        (["--obstacles", str(part), "--goal", "4,0,4"], "millimetres"),
+                        (["--obstacles", str(dense), "--goal", "4,0,4"], "downsample")]:
         assert exit_status(custom.main, argv + ["--out", str(tmp_path / "new" / "rec")]) == 2
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and named in err
