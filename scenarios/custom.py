@@ -29,10 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ncedf.robot import BASE
-
 from scenarios.cli import base_settings, make_parser, run_cli
-from scenarios.episode import (EpisodeSettings, Scene, make_scene, option_positive, option_vector,
+from scenarios.episode import (EpisodeSettings, Scene, beyond_reach, make_scene, option_positive, option_vector,
                                require_fixed_goal, scenario_options)
 from scenarios.obstacle_file import load_obstacle
 from scenarios.solids import DENSITY
@@ -88,10 +86,9 @@ def warn_of_the_goal(scene: Scene, named: str) -> None:
     """Warn of a goal (``named`` as the user gave it) that no motion reaches: farther from the base than
     the robot's length, inside the (closed) obstacle, or nearer to it than the tip's radius less the
     goal tolerance (the tip's end disk would touch it)."""
-    far, length = float(np.linalg.norm(scene.goal - BASE)), scene.spec.n_links * scene.spec.length
-    if far > length + scene.tolerance:
-        warnings.warn(f"the goal {named} lies {far:.2f} m from the robot's base, beyond its length of {length:.2f} m: "
-                      "it cannot be reached", stacklevel=3)
+    reason = beyond_reach(scene.goal, scene.spec, scene.tolerance)
+    if reason is not None:
+        warnings.warn(f"{reason}: it cannot be reached", stacklevel=3)
     goal = scene.goal[None]
     if scene.world.clouds:
         inside, near = False, float(np.linalg.norm(np.asarray(scene.world.clouds[0].points) - goal, axis=-1).min())

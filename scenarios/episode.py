@@ -206,13 +206,22 @@ def goal_text(goal: str) -> str:
     return goal if position is None else ",".join(map(repr, position))
 
 
-def check_reach(position, spec: RobotSpec) -> None:
-    """ValueError when a goal position (3,) m lies beyond the robot's length from its base (the origin)."""
+def beyond_reach(position, spec: RobotSpec, tolerance: float = 0.0) -> str | None:
+    """Why a goal position (3,) m cannot be reached: it lies farther than the robot's length plus
+    ``tolerance`` m from its base (the origin); None where it does not."""
     distance = float(np.linalg.norm(position))
     reach = spec.n_links * spec.length
-    if distance > reach:
-        raise ValueError(f"goal {tuple(float(v) for v in position)} is {distance:.2f} m from the base, beyond the "
-                         f"reach of the {spec.n_links}-link robot ({reach:g} m)")
+    if distance <= reach + tolerance:
+        return None
+    return (f"goal {tuple(float(v) for v in position)} is {distance:.2f} m from the base, beyond the reach of the "
+            f"{spec.n_links}-link robot ({reach:g} m)")
+
+
+def check_reach(position, spec: RobotSpec) -> None:
+    """ValueError when a goal position (3,) m lies beyond the robot's length from its base (the origin)."""
+    reason = beyond_reach(position, spec)
+    if reason is not None:
+        raise ValueError(reason)
 
 
 def episode_name(settings: EpisodeSettings) -> str:

@@ -133,7 +133,7 @@ def test_custom_runner_warns_of_a_goal_no_motion_reaches(tmp_path):
             ("obstacles", str(obstacles)), ("goal_position", goal), ("tolerance", tolerance))))
 
     for obstacles, goal, tolerance, message in [
-            (cloud, "0,0,9", "0.2", "9.00 m from the robot's base, beyond its length of 8.00 m"),
+            (cloud, "0,0,9", "0.2", r"9.00 m from the base, beyond the reach of the 4-link robot \(8 m\): it cannot"),
             (box, "4,0,4", "0.2", "inside the obstacle"),
             (box, "4,0,4.55", "0.1", "0.05 m from the obstacle: the robot's tip, of radius 0.20 m"),
             (cloud, "3,0,3.05", "0.1", "0.05 m from the obstacle")]:
