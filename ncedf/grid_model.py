@@ -202,19 +202,38 @@ def surfaces(cells: np.ndarray, link: float, h: float) -> list[np.ndarray]:
     return [cells[labels == k] for k in range(count)]
 
 
-def closed_cells(parts: list[np.ndarray], shape: tuple, h: float, reach: float, gap: float) -> np.ndarray:
-    """(X, Y, Z) bool: each surface's hit cells (N, 3 ints) grown by ``reach`` m and shrunk by
-    ``sqrt(reach^2 - gap^2)`` on its own (module docstring), enclosed free space filled."""
-    closed = np.zeros(shape, bool)
-    shrink = np.sqrt(max(reach**2 - gap**2, 0.0))
+class Surface(NamedTuple):
+    """One surface's hit cells in a box of the grid: the box (3 slices), the hit cells there
+    (bool) and every cell's distance to them, m (both the box's shape)."""
+
+    box: tuple
+    hit: np.ndarray
+    distance: np.ndarray
+
+
+def surface_boxes(parts: list[np.ndarray], shape: tuple, h: float, reach: float) -> list[Surface]:
+    """Each surface's hit cells (N, 3 ints) in the box that holds them grown by up to ``reach`` m,
+    with their distance transform (computed once for every closing at a reach up to that)."""
     margin = int(np.ceil(reach / h)) + 1
+    boxes = []
     for cells in parts:
         low, high = np.maximum(cells.min(axis=0) - margin, 0), np.minimum(cells.max(axis=0) + margin + 1, shape)
         hit = np.zeros(high - low, bool)
         hit[tuple((cells - low).T)] = True
-        grown = ndimage.distance_transform_edt(~hit, sampling=h) <= reach
         box = tuple(slice(a, b) for a, b in zip(low, high))
-        closed[box] |= hit | (ndimage.distance_transform_edt(grown, sampling=h) > shrink)
+        boxes.append(Surface(box, hit, ndimage.distance_transform_edt(~hit, sampling=h)))
+    return boxes
+
+
+def closed_cells(surfaces: list[Surface], shape: tuple, h: float, reach: float, gap: float) -> np.ndarray:
+    """(X, Y, Z) bool: each surface's hit cells grown by ``reach`` m (at most the reach of its
+    box) and shrunk by ``sqrt(reach^2 - gap^2)`` on its own (module docstring), enclosed free
+    space filled."""
+    closed = np.zeros(shape, bool)
+    shrink = np.sqrt(max(reach**2 - gap**2, 0.0))
+    for surface in surfaces:
+        grown = surface.distance <= reach
+        closed[surface.box] |= surface.hit | (ndimage.distance_transform_edt(grown, sampling=h) > shrink)
     labels, _ = ndimage.label(~closed)
     return closed | ~np.isin(labels, border_labels(labels))
 
@@ -252,7 +271,8 @@ def _fit(data: bytes, anchors: bytes, corridor: bool, model: GridModel) -> Grid:
     cells = np.unique(np.rint((points - origin) / h).astype(int), axis=0)
     hit = np.zeros(shape, bool)
     hit[tuple(cells.T)] = True
-    parts = surfaces(cells, LINK * model.gap, h)
+    reach = REACH * model.gap
+    parts = surface_boxes(surfaces(cells, LINK * model.gap, h), shape, h, reach)
     goal = tuple(np.clip(np.rint((anchors[-1] - origin) / h).astype(int), 0, np.asarray(shape) - 1))
     way_in = np.zeros(shape, bool)
     if corridor:
@@ -263,7 +283,6 @@ def _fit(data: bytes, anchors: bytes, corridor: bool, model: GridModel) -> Grid:
                   & closed_cells(parts, shape, h, INNER * reach, model.gap))
         return signed_field(closed & ~way_in, hit, points, origin, h)
 
-    reach = REACH * model.gap
     field = field_at(reach)
     while reach > h and not goal_open(field, goal, model.keep_open):
         reach *= SHRINK
