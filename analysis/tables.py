@@ -161,18 +161,21 @@ def _environments(rec: Recordings, goal: str) -> tuple[set, set, set, bool]:
 
 def _floor(g: pd.DataFrame, environments: tuple[set, set, set, bool]) -> tuple[dict, int]:
     """Rates (with Wilson intervals) over a row's episodes of the certain floor, the environments the
-    oracle cannot solve and the avoidable collisions; and the collisions no verdict covers."""
+    oracle cannot solve and the avoidable collisions; and the collisions no verdict covers. The
+    avoidable rate is unknown (NaN) while some collision of the row is in an environment neither
+    solved nor judged: it could be either."""
     solved, unsolved, certain, judged = environments
     envs, collided = g["env_seed"].astype(int), g.loc[g["outcome"] == "collision", "env_seed"].astype(int)
     n, out = len(g), {}
+    unknown = int((~collided.isin(solved | unsolved)).sum())
     counts = {"certain": envs.isin(certain).sum() if judged else None,
               "unsolved": envs.isin(unsolved).sum() if judged else None,
-              "avoidable": collided.isin(solved).sum()}
+              "avoidable": None if unknown else collided.isin(solved).sum()}
     for name, k in counts.items():
         low, high = wilson(int(k), n) if k is not None else (math.nan, math.nan)
         out.update({f"n_{name}": k, name: int(k) / n if k is not None else math.nan, f"{name}_low": low,
                     f"{name}_high": high})
-    return out, int((~collided.isin(solved | unsolved)).sum())
+    return out, unknown
 
 
 def _table3_row(key: tuple, g: pd.DataFrame, floor: dict) -> tuple[dict, list]:
@@ -201,7 +204,7 @@ TABLE3_NOTES = (
     "judge passes). Oracle unsolved: environments where no recorded episode reached the goal and that planner "
     "found no motion (a local search: evidence, not proof). Certain: a sphere overlaps the base disk, part of "
     "every configuration, before any motion can reach the goal; every controller collides there. '-': no "
-    "verdicts recorded.")
+    "verdicts recorded (for the avoidable rate: some collision of the row neither judged nor solved).")
 
 
 def table3(rec: Recordings) -> Table | str:

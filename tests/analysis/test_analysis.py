@@ -193,6 +193,25 @@ def test_table3_rates_and_times_match_the_episodes(folder, tables, verdicts):
     assert math.isnan(other["paper_success"])  # the paper's figures are for its own goals
 
 
+def test_avoidable_is_unknown_while_a_collision_is_neither_judged_nor_solved(folder, tmp_path):
+    """The sphere recordings without the floor's verdicts: each collision is in an environment that no
+    recorded episode solved (one episode each), so a row with one has no avoidable rate, not 0."""
+    runs, results, _ = folder
+    shutil.copytree(runs / "spheres", tmp_path / "runs" / "spheres")
+    done = script("make_tables.py", tmp_path / "runs", "--out", tmp_path / "tables")
+    assert done.returncode == 0, done.stderr
+    df = pd.read_csv(tmp_path / "tables" / "table3.csv").set_index("goal")
+    collided = {goal: sum(s.goal == goal and r.outcome == "collision" for s, r in results.values()
+                          if s.scenario == "spheres") for goal in df.index}
+    assert any(collided.values()), "the fixture should give a collision"
+    for goal, row in df.iterrows():
+        if collided[goal]:
+            assert math.isnan(row["avoidable"]) and math.isnan(row["n_avoidable"])
+        else:
+            assert row["avoidable"] == row["n_avoidable"] == 0
+    assert f"{sum(collided.values())} collisions lie in environments with no verdict" in done.stdout
+
+
 def test_table4_matches_the_episodes(folder, tables):
     _, results, _ = folder
     out, _ = tables
