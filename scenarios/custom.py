@@ -32,6 +32,7 @@ import numpy as np
 from scenarios.cli import base_settings, make_parser, run_cli
 from scenarios.episode import (EpisodeSettings, Scene, beyond_reach, make_scene, option_positive, option_vector,
                                require_fixed_goal, scenario_options)
+from scenarios.observe import surface_count
 from scenarios.obstacle_file import load_obstacle
 from scenarios.solids import DENSITY
 from scenarios.world import CloudObstacle, World
@@ -75,7 +76,7 @@ def check_observed_count(obstacle, density: float, named: str) -> None:
             raise ValueError(f"{named}: {len(obstacle.points)} points, more than the {MAX_OBSERVED} a world may be "
                              "observed at: downsample the cloud")
         return
-    count = round(obstacle.area * density)
+    count = int(surface_count(obstacle.area, density))
     if count > MAX_OBSERVED:
         raise ValueError(f"{named}: {obstacle.area:.4g} m^2 of surface at {density:g} points per m^2 is {count} "
                          f"observed points, more than {MAX_OBSERVED}: coordinates are read as metres (is the file "

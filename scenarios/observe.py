@@ -18,6 +18,12 @@ from scenarios.mesh_check import triangle_areas
 from scenarios.world import World, WorldError
 
 
+def surface_count(area, density: float):
+    """The points observed on ``area`` m^2 (a float or an array) at ``density`` per m^2: the area times
+    the density, rounded (an int, or an int array)."""
+    return np.rint(density * np.asarray(area)).astype(int)[()]
+
+
 def _box_faces(centre, size) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The six faces of a box: centres (6, 3), two edge half-vectors (6, 2, 3), areas (6,)."""
     c, h = np.asarray(centre, np.float64), 0.5 * np.asarray(size, np.float64)
@@ -73,14 +79,14 @@ def make_observer(world: World, key) -> Observer:
         faces = [_box_faces(b.centre, b.size) for b in world.boxes]
         centres = np.concatenate([f[0] for f in faces])
         half_edges = np.concatenate([f[1] for f in faces])
-        counts = np.rint(world.density * np.concatenate([f[2] for f in faces])).astype(int)
+        counts = surface_count(np.concatenate([f[2] for f in faces]), world.density)
         face = np.repeat(np.arange(len(counts)), counts)
         st = 2.0 * np.asarray(jax.random.uniform(k_box, (len(face), 2)), np.float64) - 1.0
         parts.append(centres[face] + st[:, :1] * half_edges[face, 0] + st[:, 1:] * half_edges[face, 1])
     for i, mesh in enumerate(world.meshes):
         tri = mesh.triangles
         areas = triangle_areas(tri)
-        n = int(np.rint(world.density * areas.sum()))
+        n = int(surface_count(areas.sum(), world.density))
         k_pick, k_bary = jax.random.split(jax.random.fold_in(k_mesh, i))
         pick = np.asarray(jax.random.choice(k_pick, len(tri), (n,), p=jnp.asarray(areas / areas.sum())))
         ab = np.asarray(jax.random.uniform(k_bary, (n, 2)), np.float64)
