@@ -126,13 +126,24 @@ def pooled(runs: pd.DataFrame, metric: str) -> tuple[float, float, int]:
     return pooled_mean_std(runs[f"{metric}.count"], runs[f"{metric}.mean"], runs[f"{metric}.std"])
 
 
+#: What :func:`machine_name` reads for a run whose metadata names no machine.
+NOT_RECORDED = "not recorded"
+
+
+def machine_name(run: pd.Series) -> str:
+    """The machine a run's or manifest's metadata names, "cpu, N cores, device" (``NOT_RECORDED``
+    where it names none: recordings made before runs named theirs)."""
+    if pd.isna(run.get("machine.cpu", float("nan"))):
+        return NOT_RECORDED
+    return f"{run['machine.cpu']}, {int(run['machine.cores'])} cores, {run['machine.device']}"
+
+
 def hardware(rec: Recordings, folders) -> str:
     """The machines named by the manifests of ``folders`` (or "unknown machine")."""
     if rec.manifests.empty or "machine.cpu" not in rec.manifests:
         return "unknown machine (no experiment manifest)"
     m = rec.manifests[rec.manifests["folder"].isin(set(folders))]
-    names = sorted({f"{r['machine.cpu']}, {int(r['machine.cores'])} cores, {r['machine.device']}"
-                    for _, r in m.iterrows()})
+    names = sorted({machine_name(r) for _, r in m.iterrows()})
     return "; ".join(names) or "unknown machine (no experiment manifest)"
 
 

@@ -12,7 +12,7 @@ import numpy as np
 import pandas as pd
 
 from analysis import paper
-from analysis.load import Recordings, hardware, pooled, sphere_episodes
+from analysis.load import NOT_RECORDED, Recordings, hardware, machine_name, pooled, sphere_episodes
 from analysis.report import Table, fmt, fmt_pm, fmt_rate
 from analysis.stats import mean_std, wilson
 from scenarios import WORLDS
@@ -78,8 +78,23 @@ def _networks(rec: Recordings, experiment: str) -> pd.DataFrame:
             "mppi_step_ms_mean": mppi_mean, "mppi_step_ms_std": mppi_std, "timing_repeats": mppi_n,
             "mppi_samples": int(run["timing.mppi_samples"]), "mppi_horizon": int(run["timing.mppi_horizon"]),
             "mppi_points": int(run["timing.mppi_points"]), "validation_samples": int(run["validation.samples"]),
+            "machine": machine_name(run),
         })
     return pd.DataFrame(rows)
+
+
+def _machine_number(name: str, machines: list[str]) -> str:
+    """A network's machine as its number in ``machines`` (from 1), '-' where its recording names none."""
+    return str(machines.index(name) + 1) if name in machines else "-"
+
+
+def _machine_legend(machines: list[str], nets: pd.DataFrame, rec: Recordings) -> str:
+    """The machines that trained and timed the networks, numbered from 1, and '-' for those whose
+    recordings name none (the folder's manifest names only the machine of its last run)."""
+    legend = [f"{i} = {name}" for i, name in enumerate(machines, 1)]
+    if (nets["machine"] == NOT_RECORDED).any():
+        legend.append(f"- = {NOT_RECORDED} (the folder's last run: {hardware(rec, nets['folder'])})")
+    return "; ".join(legend)
 
 
 def table1(rec: Recordings) -> Table | str:
@@ -90,15 +105,17 @@ def table1(rec: Recordings) -> Table | str:
     ref = [paper.TABLE1.get((r.layers, r.width), (np.nan,) * 5) for r in nets.itertuples()]
     for i, name in enumerate(("paper_inference_ms", "paper_mppi_step_s", "paper_mae", "paper_rmse", "paper_moe")):
         nets[name] = [r[i] for r in ref]
+    machines = sorted(set(nets["machine"]) - {NOT_RECORDED})
     rows = [[f"{r.encoding}{_quick_tag(r.quick)}", f"{r.layers} × {r.width}", str(r.epochs),
              f"{fmt(r.mae)} / {fmt(r.rmse)} / {fmt(r.moe)}", fmt(r.over_p999),
              f"{fmt(r.paper_mae)} / {fmt(r.paper_rmse)} / {fmt(r.paper_moe)}",
              fmt_pm(r.inference_ms_mean, r.inference_ms_std, 3), fmt(r.paper_inference_ms, 4),
-             fmt_pm(r.mppi_step_ms_mean / 1e3, r.mppi_step_ms_std / 1e3, 4), fmt(r.paper_mppi_step_s, 4)]
+             fmt_pm(r.mppi_step_ms_mean / 1e3, r.mppi_step_ms_std / 1e3, 4), fmt(r.paper_mppi_step_s, 4),
+             _machine_number(r.machine, machines)]
             for r in nets.itertuples()]
     settings = sorted({(r.mppi_samples, r.mppi_horizon, r.mppi_points, r.timing_repeats, r.validation_samples)
                        for r in nets.itertuples()})
-    notes = [f"Ours: {hardware(rec, nets['folder'])}. Paper: {paper.HARDWARE}.",
+    notes = [f"Ours, by the machine column: {_machine_legend(machines, nets, rec)}. Paper: {paper.HARDWARE}.",
              "Errors on exact distances (validation: other configurations, uniform points in the training box); "
              "p99.9: 99.9th percentile of the over-estimation max(0, pred - true), m. Paper: 100 epochs.",
              *(f"Timing: {n} repeats after compilation (mean ± std); inference = whole-robot distance of one "
@@ -108,7 +125,7 @@ def table1(rec: Recordings) -> Table | str:
     if nets["quick"].any():
         notes.append(QUICK_NOTE)
     header = ["encoding", "layers × width", "epochs", "MAE / RMSE / MOE (m)", "over p99.9 (m)",
-              "paper MAE / RMSE / MOE", "inference (ms)", "paper (ms)", "MPPI step (s)", "paper (s)"]
+              "paper MAE / RMSE / MOE", "inference (ms)", "paper (ms)", "MPPI step (s)", "paper (s)", "machine"]
     return Table("table1", "Table I: network size against accuracy and time", header, rows, notes,
                  nets.drop(columns="folder"))
 
@@ -121,15 +138,18 @@ def table2(rec: Recordings) -> Table | str:
     ref = [paper.TABLE2[r.lambda_over > 0] for r in nets.itertuples()]
     for i, name in enumerate(("paper_mae", "paper_rmse", "paper_moe")):
         nets[name] = [r[i] for r in ref]
+    machines = sorted(set(nets["machine"]) - {NOT_RECORDED})
     rows = [[f"{'with' if r.lambda_over > 0 else 'without'} (λ_O = {r.lambda_over:g}){_quick_tag(r.quick)}",
              f"{r.layers} × {r.width}, {r.encoding}", str(r.epochs), fmt(r.mae), fmt(r.rmse), fmt(r.moe),
-             fmt(r.over_p999), f"{fmt(r.paper_mae)} / {fmt(r.paper_rmse)} / {fmt(r.paper_moe)}"]
+             fmt(r.over_p999), f"{fmt(r.paper_mae)} / {fmt(r.paper_rmse)} / {fmt(r.paper_moe)}",
+             _machine_number(r.machine, machines)]
             for r in nets.itertuples()]
-    notes = [f"Ours: {hardware(rec, nets['folder'])}. Errors on exact distances, m; "
+    notes = [f"Ours, by the machine column: {_machine_legend(machines, nets, rec)}. Errors on exact distances, m; "
              "p99.9: 99.9th percentile of the over-estimation. Paper: 100 epochs."]
     if nets["quick"].any():
         notes.append(QUICK_NOTE)
-    header = ["over-estimation loss", "network", "epochs", "MAE", "RMSE", "MOE", "over p99.9", "paper MAE / RMSE / MOE"]
+    header = ["over-estimation loss", "network", "epochs", "MAE", "RMSE", "MOE", "over p99.9", "paper MAE / RMSE / MOE",
+              "machine"]
     return Table("table2", "Table II: the over-estimation loss (4 × 16)", header, rows, notes,
                  nets.drop(columns="folder"))
 

@@ -10,8 +10,8 @@ package versions (quick results are marked there and in every table).
 
 * Table I: the 12 networks (2-5 layers x width 16/24/32), both input encodings,
   trained with ``ncedf.train`` on exact labels for an epoch budget
-  (``--epochs``, default the paper's 100). A network's recording holds one
-  ``/metrics`` row per epoch (loss terms, validation MAE, RMSE, MOE, p99.9
+  (``--epochs``, default the paper's 100). A network's recording names the
+  machine that trained and timed it and holds one ``/metrics`` row per epoch (loss terms, validation MAE, RMSE, MOE, p99.9
   over-estimation on exact distances), then ``--timing-repeats`` rows of
   timings: ``inference_ms`` (whole-robot distance, one 4-link configuration,
   500 points) and ``mppi_step_ms`` (4 links, 800 samples, horizon 20, the
@@ -274,6 +274,7 @@ def train_network(net: Network, where: Path, budget: Budget, data, val, points, 
                        "mppi_samples": budget.timing.samples, "mppi_horizon": budget.timing.horizon,
                        "mppi_points": int(len(points)), "repeats": budget.timing.repeats}}
     saved, fingerprint = where / f"{net.name}{STATE_SUFFIX}", json.dumps(meta, sort_keys=True)
+    meta["machine"] = manifest.machine()  # not in the fingerprint: a run stopped on one machine goes on on another
     with Recorder(where / net.name, meta, ("mcap",), overwrite=True) as rec:
         def record(row, state):
             log_epoch(rec, row)

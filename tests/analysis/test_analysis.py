@@ -24,11 +24,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from analysis.load import NOT_RECORDED, machine_name
 from ncedf.data import DatasetConfig, ValidationConfig, load_dataset
 from ncedf.model import load_model
 from ncedf.robot import RobotSpec
 from ncedf.train import evaluate_model
-from scenarios import floor, reproduce
+from scenarios import floor, manifest, reproduce
 from scenarios.episode import EpisodeSettings, episode_name, run_episode
 from scenarios.oracle import OracleResult
 from scenarios.spheres import make_environment
@@ -261,6 +262,18 @@ def test_table2_metrics_match_the_saved_networks(folder, tables):
         assert row.epochs == TINY_BUDGET.networks.epochs and row.timing_repeats == TINY_BUDGET.timing.repeats
         assert row.inference_ms_mean > 0 and row.mppi_step_ms_mean > 0 and row.quick
     assert "(quick)" in (out / "table2.md").read_text() and "0.017 / 0.024 / 0.002" in done.stdout
+    here = manifest.machine()  # every network of the fixture was trained and timed by this process
+    assert set(df["machine"]) == {f"{here['cpu']}, {here['cores']} cores, {here['device']}"}
+    assert f"1 = {df['machine'][0]}" in done.stdout and NOT_RECORDED not in done.stdout
+
+
+def test_a_run_that_names_no_machine_reads_not_recorded():
+    """Networks recorded before runs named their machine: no machine metadata, or a NaN where other
+    runs of the same table name one."""
+    named = pd.Series({"machine.cpu": "X", "machine.cores": 2.0, "machine.device": "cpu"})
+    assert machine_name(named) == "X, 2 cores, cpu"
+    assert machine_name(pd.Series({"mae.last": 0.1})) == NOT_RECORDED
+    assert machine_name(pd.Series({"machine.cpu": np.nan, "machine.cores": np.nan})) == NOT_RECORDED
 
 
 def test_a_network_stopped_midway_goes_on_from_its_last_epoch(folder, tmp_path, monkeypatch):
