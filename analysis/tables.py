@@ -83,18 +83,15 @@ def _networks(rec: Recordings, experiment: str) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def _machine_number(name: str, machines: list[str]) -> str:
-    """A network's machine as its number in ``machines`` (from 1), '-' where its recording names none."""
-    return str(machines.index(name) + 1) if name in machines else "-"
-
-
-def _machine_legend(machines: list[str], nets: pd.DataFrame, rec: Recordings) -> str:
-    """The machines that trained and timed the networks, numbered from 1, and '-' for those whose
-    recordings name none (the folder's manifest names only the machine of its last run)."""
+def _machine_column(nets: pd.DataFrame, rec: Recordings) -> tuple[list[str], str]:
+    """Each network's machine as a number from 1, '-' where its recording names none, and the
+    legend of the numbers (for '-', the folder's manifest, which names only its last run's machine)."""
+    machines = sorted(set(nets["machine"]) - {NOT_RECORDED})
+    numbers = [str(machines.index(name) + 1) if name in machines else "-" for name in nets["machine"]]
     legend = [f"{i} = {name}" for i, name in enumerate(machines, 1)]
-    if (nets["machine"] == NOT_RECORDED).any():
+    if "-" in numbers:
         legend.append(f"- = {NOT_RECORDED} (the folder's last run: {hardware(rec, nets['folder'])})")
-    return "; ".join(legend)
+    return numbers, "; ".join(legend)
 
 
 def table1(rec: Recordings) -> Table | str:
@@ -105,17 +102,16 @@ def table1(rec: Recordings) -> Table | str:
     ref = [paper.TABLE1.get((r.layers, r.width), (np.nan,) * 5) for r in nets.itertuples()]
     for i, name in enumerate(("paper_inference_ms", "paper_mppi_step_s", "paper_mae", "paper_rmse", "paper_moe")):
         nets[name] = [r[i] for r in ref]
-    machines = sorted(set(nets["machine"]) - {NOT_RECORDED})
+    numbers, legend = _machine_column(nets, rec)
     rows = [[f"{r.encoding}{_quick_tag(r.quick)}", f"{r.layers} × {r.width}", str(r.epochs),
              f"{fmt(r.mae)} / {fmt(r.rmse)} / {fmt(r.moe)}", fmt(r.over_p999),
              f"{fmt(r.paper_mae)} / {fmt(r.paper_rmse)} / {fmt(r.paper_moe)}",
              fmt_pm(r.inference_ms_mean, r.inference_ms_std, 3), fmt(r.paper_inference_ms, 4),
-             fmt_pm(r.mppi_step_ms_mean / 1e3, r.mppi_step_ms_std / 1e3, 4), fmt(r.paper_mppi_step_s, 4),
-             _machine_number(r.machine, machines)]
-            for r in nets.itertuples()]
+             fmt_pm(r.mppi_step_ms_mean / 1e3, r.mppi_step_ms_std / 1e3, 4), fmt(r.paper_mppi_step_s, 4), machine]
+            for r, machine in zip(nets.itertuples(), numbers)]
     settings = sorted({(r.mppi_samples, r.mppi_horizon, r.mppi_points, r.timing_repeats, r.validation_samples)
                        for r in nets.itertuples()})
-    notes = [f"Ours, by the machine column: {_machine_legend(machines, nets, rec)}. Paper: {paper.HARDWARE}.",
+    notes = [f"Ours, by the machine column: {legend}. Paper: {paper.HARDWARE}.",
              "Errors on exact distances (validation: other configurations, uniform points in the training box); "
              "p99.9: 99.9th percentile of the over-estimation max(0, pred - true), m. Paper: 100 epochs.",
              *(f"Timing: {n} repeats after compilation (mean ± std); inference = whole-robot distance of one "
@@ -138,13 +134,12 @@ def table2(rec: Recordings) -> Table | str:
     ref = [paper.TABLE2[r.lambda_over > 0] for r in nets.itertuples()]
     for i, name in enumerate(("paper_mae", "paper_rmse", "paper_moe")):
         nets[name] = [r[i] for r in ref]
-    machines = sorted(set(nets["machine"]) - {NOT_RECORDED})
+    numbers, legend = _machine_column(nets, rec)
     rows = [[f"{'with' if r.lambda_over > 0 else 'without'} (λ_O = {r.lambda_over:g}){_quick_tag(r.quick)}",
              f"{r.layers} × {r.width}, {r.encoding}", str(r.epochs), fmt(r.mae), fmt(r.rmse), fmt(r.moe),
-             fmt(r.over_p999), f"{fmt(r.paper_mae)} / {fmt(r.paper_rmse)} / {fmt(r.paper_moe)}",
-             _machine_number(r.machine, machines)]
-            for r in nets.itertuples()]
-    notes = [f"Ours, by the machine column: {_machine_legend(machines, nets, rec)}. Errors on exact distances, m; "
+             fmt(r.over_p999), f"{fmt(r.paper_mae)} / {fmt(r.paper_rmse)} / {fmt(r.paper_moe)}", machine]
+            for r, machine in zip(nets.itertuples(), numbers)]
+    notes = [f"Ours, by the machine column: {legend}. Errors on exact distances, m; "
              "p99.9: 99.9th percentile of the over-estimation. Paper: 100 epochs."]
     if nets["quick"].any():
         notes.append(QUICK_NOTE)

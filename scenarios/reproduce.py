@@ -11,8 +11,9 @@ package versions (quick results are marked there and in every table).
 * Table I: the 12 networks (2-5 layers x width 16/24/32), both input encodings,
   trained with ``ncedf.train`` on exact labels for an epoch budget
   (``--epochs``, default the paper's 100). A network's recording names the
-  machine that trained and timed it and holds one ``/metrics`` row per epoch (loss terms, validation MAE, RMSE, MOE, p99.9
-  over-estimation on exact distances), then ``--timing-repeats`` rows of
+  machine that trained and timed it and holds one ``/metrics`` row per epoch
+  (loss terms, validation MAE, RMSE, MOE, p99.9 over-estimation on exact
+  distances), then ``--timing-repeats`` rows of
   timings: ``inference_ms`` (whole-robot distance, one 4-link configuration,
   500 points) and ``mppi_step_ms`` (4 links, 800 samples, horizon 20, the
   cluttered scene's ~500 observed points). Weights are saved beside it.
