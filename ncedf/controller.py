@@ -184,7 +184,7 @@ class Controller:
         if c.guide is None:
             return fitted, None
         if self._guided[0] is not fitted.grid or self._guided[1] != position.tobytes():
-            self._guided = (fitted.grid, position.tobytes(), c.guide.fit(fitted.grid, position))
+            self._guided = (fitted.grid, position.tobytes(), c.guide.fit(fitted, position))
         return fitted, self._guided[2]
 
     def check_moves(self, arc, points, mask, model):

@@ -324,16 +324,6 @@ def fit_polytopes(points: np.ndarray, link: float, groups: np.ndarray | None = N
     A cluster on a sphere (:func:`fit_sphere`) is that sphere's ball instead. A group's fit is
     cached by its points (the last ``FIT_CACHE`` groups), so a static group is fitted once.
     """
-    lower = np.zeros((MAX_CLUSTERS, 3), np.float32)
-    upper = np.zeros((MAX_CLUSTERS, 3), np.float32)
-    normals = np.zeros((MAX_CLUSTERS, MAX_PLANES, 3), np.float32)
-    offsets = np.zeros((MAX_CLUSTERS, MAX_PLANES), np.float32)
-    valid = np.zeros((MAX_CLUSTERS, MAX_PLANES), bool)
-    present = np.zeros(MAX_CLUSTERS, bool)
-    moving = np.zeros((MAX_CLUSTERS, 3), np.float32)
-    centre = np.zeros((MAX_CLUSTERS, 3), np.float32)
-    radius = np.zeros(MAX_CLUSTERS, np.float32)
-    ball = np.zeros(MAX_CLUSTERS, bool)
     points = np.ascontiguousarray(points, np.float64)
     groups = np.zeros(len(points), int) if groups is None else np.asarray(groups)
     found, left_out = [], 0  # (members' indices into points, fit); clusters left out
@@ -344,6 +334,30 @@ def fit_polytopes(points: np.ndarray, link: float, groups: np.ndarray | None = N
         left_out += len(fits) - len(kept)
         found += [(index[members], fit) for members, *fit in kept]
     found.sort(key=lambda cluster: -len(cluster[0]))  # stable: the largest first
+    return pack(found, velocity, left_out)
+
+
+def fit_part(points: np.ndarray) -> tuple:
+    """One convex obstacle's points (P, 3) closed whole, without clustering: :func:`fit_polytope`'s
+    four arrays and :func:`fit_sphere`'s result (a sphere's polytope without hull planes)."""
+    sphere = fit_sphere(points)
+    return (*fit_polytope(points, planes=sphere is None), sphere)
+
+
+def pack(found: list[tuple], velocity: np.ndarray | None = None, left_out: int = 0) -> Polytopes:
+    """The :class:`Polytopes` of the first ``MAX_CLUSTERS`` of ``found``: (members' indices, fit) per
+    cluster, the fit as :func:`fit_part` gives it; each moves at the mean ``velocity`` (S, 3) m/s of its
+    members (None: at rest)."""
+    lower = np.zeros((MAX_CLUSTERS, 3), np.float32)
+    upper = np.zeros((MAX_CLUSTERS, 3), np.float32)
+    normals = np.zeros((MAX_CLUSTERS, MAX_PLANES, 3), np.float32)
+    offsets = np.zeros((MAX_CLUSTERS, MAX_PLANES), np.float32)
+    valid = np.zeros((MAX_CLUSTERS, MAX_PLANES), bool)
+    present = np.zeros(MAX_CLUSTERS, bool)
+    moving = np.zeros((MAX_CLUSTERS, 3), np.float32)
+    centre = np.zeros((MAX_CLUSTERS, 3), np.float32)
+    radius = np.zeros(MAX_CLUSTERS, np.float32)
+    ball = np.zeros(MAX_CLUSTERS, bool)
     for c, (members, (box_lower, box_upper, n, b, sphere)) in enumerate(found[:MAX_CLUSTERS]):
         lower[c], upper[c] = box_lower, box_upper
         normals[c, : len(b)], offsets[c, : len(b)], valid[c, : len(b)] = n, b, True

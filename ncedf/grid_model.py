@@ -72,7 +72,9 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from ncedf.convex import COVER_SPHERES, Polytopes, fit_polytopes, observed_motion, polytope_distance
+from ncedf.convex import (COVER_SPHERES, MAX_CLUSTERS, Polytopes, fit_part, fit_polytopes, observed_motion, pack,
+                          polytope_distance)
+from ncedf.parts import is_convex, split
 from ncedf.robot import BASE, RobotSpec
 from ncedf.shapes import SphereShape
 from ncedf.validate import check_fields
@@ -121,10 +123,12 @@ def padded(origin: np.ndarray, h: float, field: np.ndarray, length: int) -> Grid
 
 
 class GridFit(NamedTuple):
-    """The grid model's fit (a pytree): the still points' ``grid`` and the ``moving`` clusters'
-    polytopes (none present before a row is seen to move)."""
+    """The grid model's fit (a pytree): the still points' convex ``parts`` as polytopes and the
+    ``grid`` of the others, and the ``moving`` clusters' polytopes (none present before a row is
+    seen to move)."""
 
     grid: Grid
+    parts: Polytopes
     moving: Polytopes
 
 
@@ -172,8 +176,9 @@ class GridModel:
         position = goal[:3, 3] if goal.shape == (4, 4) else goal
         ends = [position - self.corridor_length * goal[:3, 2]] if goal.shape == (4, 4) and self.corridor_radius else []
         anchors = np.stack([BASE, *ends, position])
-        grid = _fit(np.ascontiguousarray(points[static], np.float64).tobytes(), anchors.tobytes(), bool(ends), self)
-        return GridFit(grid, fit_polytopes(points[moved], self.link, velocity=velocity[moved], bounds=()))
+        grid, parts = _fit(np.ascontiguousarray(points[static], np.float64).tobytes(), anchors.tobytes(), bool(ends),
+                           self)
+        return GridFit(grid, parts, fit_polytopes(points[moved], self.link, velocity=velocity[moved], bounds=()))
 
 
 def grid_box(points: np.ndarray, anchors: np.ndarray, model: GridModel) -> tuple[np.ndarray, float, tuple]:
@@ -260,20 +265,53 @@ def goal_open(field: np.ndarray, cell: tuple, room: float) -> bool:
 
 
 @functools.lru_cache(maxsize=GRID_CACHE)
-def _fit(data: bytes, anchors: bytes, corridor: bool, model: GridModel) -> Grid:
-    """The grid of the points (bytes of (P, 3)) round the anchors (bytes of (N, 3): the base, with a
-    ``corridor`` its far end, and the goal position), on the device (cached: not copied each step)."""
+def _fit(data: bytes, anchors: bytes, corridor: bool, model: GridModel) -> tuple[Grid, Polytopes]:
+    """The grid and the convex parts' polytopes of the points (bytes of (P, 3)) round the anchors
+    (bytes of (N, 3): the base, with a ``corridor`` its far end, and the goal position): the
+    points cut into parts (``ncedf.parts``), the ``MAX_CLUSTERS`` largest convex ones closed as
+    polytopes, the others closed on the grid, on the device (cached: not copied each step)."""
     points = np.frombuffer(data, np.float64).reshape(-1, 3)
     anchors = np.frombuffer(anchors, np.float64).reshape(-1, 3)
     origin, h, shape = grid_box(points, anchors, model)
     if len(points) == 0:  # no static obstacle: far everywhere
-        return padded(origin, h, np.full((2, 2, 2), FAR, np.float32), model.max_cells)
+        return padded(origin, h, np.full((2, 2, 2), FAR, np.float32), model.max_cells), pack([])
+    convex = [part for part in split(points, model.gap) if is_convex(points[part], model.gap)]
+    closed = sorted(convex, key=len, reverse=True)[:MAX_CLUSTERS]
+    rest = np.ones(len(points), bool)
+    rest[np.concatenate(closed or [np.zeros(0, int)])] = False
+    field = _field(points[rest], anchors, corridor, model, origin, h, shape)
+    parts = pack([(part, fit_part(points[part])) for part in closed])
+    goal = goal_cell(anchors[-1], origin, h, shape)
+    if closed and not goal_open(np.minimum(field, parts_field(parts, origin, h, shape)), goal, model.keep_open):
+        # The parts shut the goal in: all on the grid, whose closing shrinks until a way opens.
+        field, parts = _field(points, anchors, corridor, model, origin, h, shape), pack([])
+    return padded(origin, h, field, model.max_cells), parts
+
+
+def goal_cell(goal: np.ndarray, origin: np.ndarray, h: float, shape: tuple) -> tuple:
+    """The cell (3 ints) of the grid at ``origin`` with spacing h and ``shape`` nearest the goal (3,) m."""
+    return tuple(np.clip(np.rint((goal - origin) / h).astype(int), 0, np.asarray(shape) - 1))
+
+
+def parts_field(parts: Polytopes, origin: np.ndarray, h: float, shape: tuple) -> np.ndarray:
+    """(X, Y, Z) the polytopes' distance (``ncedf.convex.polytope_distance``) at the centres of the
+    cells of the grid at ``origin`` with spacing h, m."""
+    centres = origin + h * np.stack(np.indices(shape), axis=-1)
+    return np.asarray(polytope_distance(jnp.asarray(centres, jnp.float32), parts))
+
+
+def _field(points: np.ndarray, anchors: np.ndarray, corridor: bool, model: GridModel, origin: np.ndarray,
+           h: float, shape: tuple) -> np.ndarray:
+    """(X, Y, Z) the field (module docstring) of the points (P, 3) on the grid at ``origin`` with
+    spacing h; far everywhere without points."""
+    if len(points) == 0:
+        return np.full(shape, FAR, np.float32)
     cells = np.unique(np.rint((points - origin) / h).astype(int), axis=0)
     hit = np.zeros(shape, bool)
     hit[tuple(cells.T)] = True
     reach = REACH * model.gap
     parts = surface_boxes(surfaces(cells, LINK * model.gap, h), shape, h, reach)
-    goal = tuple(np.clip(np.rint((anchors[-1] - origin) / h).astype(int), 0, np.asarray(shape) - 1))
+    goal = goal_cell(anchors[-1], origin, h, shape)
     way_in = np.zeros(shape, bool)
     if corridor:
         way_in = near_segment(shape, origin, h, anchors[-2:], model.corridor_radius) & ~hit
@@ -287,7 +325,7 @@ def _fit(data: bytes, anchors: bytes, corridor: bool, model: GridModel) -> Grid:
     while reach > h and not goal_open(field, goal, model.keep_open):
         reach *= SHRINK
         field = field_at(reach)
-    return padded(origin, h, field, model.max_cells)
+    return field
 
 
 def near_segment(shape: tuple, origin: np.ndarray, h: float, ends: np.ndarray, radius: float) -> np.ndarray:
@@ -336,6 +374,20 @@ def grid_distance(grid: Grid, x: jnp.ndarray) -> jnp.ndarray:
     return jnp.where(out > 0, jnp.sqrt(out + jnp.maximum(at_q, 0.0) ** 2), at_q)
 
 
+def nearer(d: jnp.ndarray, x: jnp.ndarray, polytopes: Polytopes, t=0.0, turning: bool = False) -> jnp.ndarray:
+    """(...,) the distances d (...,) of the points x (..., 3), or their distance to the polytopes
+    (``ncedf.convex.polytope_distance``) where less; skipped where no polytope is present."""
+    return jax.lax.cond(jnp.any(polytopes.present),
+                        lambda: jnp.minimum(d, polytope_distance(x, polytopes, t, turning=turning)), lambda: d)
+
+
+def still_distance(fit: GridFit, x: jnp.ndarray) -> jnp.ndarray:
+    """(...,) lower bound of the distance from points x (..., 3) to the still points of the fit, m:
+    the grid's bound (:func:`grid_distance`) or the convex parts' distance, whichever is less (each
+    part's polytope holds its points' hull)."""
+    return nearer(grid_distance(fit.grid, x), x, fit.parts)
+
+
 def fit_clearance(arcs: jnp.ndarray, frames: jnp.ndarray, spec: RobotSpec, fit: GridFit, t=0.0,
                   turning: bool = False) -> jnp.ndarray:
     """(B...,) lower bound of the clearance of the bodies (arcs (B..., M, 3), their frames
@@ -349,8 +401,5 @@ def fit_clearance(arcs: jnp.ndarray, frames: jnp.ndarray, spec: RobotSpec, fit: 
     flat_frames = jnp.broadcast_to(frames, batch + frames.shape[-3:]).reshape((-1,) + frames.shape[-3:])
     time = jnp.broadcast_to(jnp.asarray(t, arcs.dtype), batch).reshape(-1, 1, 1)
     geom = jax.vmap(cover.prepare)(flat_arcs, flat_frames)  # centres (B, M, n, 3), radius (B, M)
-    still = grid_distance(fit.grid, geom.centres)  # (B, M, n)
-    d = jax.lax.cond(jnp.any(fit.moving.present),
-                     lambda: jnp.minimum(still, polytope_distance(geom.centres, fit.moving, time, turning=turning)),
-                     lambda: still)
+    d = nearer(still_distance(fit, geom.centres), geom.centres, fit.moving, time, turning)  # (B, M, n)
     return jnp.min(d - geom.radius[..., None], axis=(-2, -1)).reshape(batch)

@@ -5,7 +5,7 @@ rollout's straight goal distance says press against the wall. The guide replaces
 the tip's straight distance to the goal with its distance along the free space of
 the grid model (``ncedf.grid_model``): the shortest path between every
 ``coarsen``-th cell of the model's grid (26 neighbours; a cell is free where
-the model's field is at least ``clearance``,
+the model's field and its convex parts' distance are at least ``clearance``,
 room for the robot's body round its tip), a step into a cell that is not free
 costing ``blocked`` times its length, so that every cell has a finite value
 and the path still prefers a long way round to a short way through. The tip's
@@ -28,7 +28,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
-from ncedf.grid_model import Grid, corners, padded
+from ncedf.grid_model import Grid, GridFit, corners, padded, parts_field
 from ncedf.validate import check_fields
 
 #: The 13 neighbour offsets of a cell that, with their opposites, make its 26.
@@ -47,11 +47,14 @@ class Guide:
     def __post_init__(self):
         check_fields(self, positive=("clearance", "blocked"), integers=("coarsen",))
 
-    def fit(self, grid: Grid, goal) -> Grid:
-        """The guided distance to the goal position (3,) m on the model's ``grid``, m."""
-        k = self.coarsen
+    def fit(self, fitted: GridFit, goal) -> Grid:
+        """The guided distance to the goal position (3,) m on the grid of the model's fit, m (room
+        where the grid's field and the convex parts' distance both leave it)."""
+        k, grid = self.coarsen, fitted.grid
         room = grid.array()[::k, ::k, ::k]
         h, origin = float(grid.spacing) * k, np.asarray(grid.origin, np.float64)
+        if np.any(fitted.parts.present):
+            room = np.minimum(room, parts_field(fitted.parts, origin, h, room.shape))
         field = path_lengths(room >= self.clearance, h, self.blocked, np.asarray(goal, np.float64) - origin)
         return padded(origin, h, field, int(grid.values.size))
 

@@ -8,7 +8,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 from ncedf.controller import Controller, ControllerConfig
-from ncedf.grid_model import EXACT_BAND, LINK, REACH, GridModel, fit_clearance, grid_box, grid_distance
+from ncedf.grid_model import EXACT_BAND, LINK, REACH, GridModel, fit_clearance, grid_box, grid_distance, still_distance
 from ncedf.guide import Guide, _gradient_at, guided_distance
 from ncedf.presets import Observation, ours, sampling_gap
 from ncedf.robot import BASE, RobotSpec, forward_kinematics
@@ -29,20 +29,20 @@ def wall(density: float, window: float, size: float = 6.0, x: float = 3.0, seed:
 
 def fit(points: np.ndarray, goal, gap: float, keep_open: float = 0.2):
     mask = np.ones(len(points), bool)
-    return GridModel(gap, keep_open).fit(points, mask, points, mask, 0.05, np.asarray(goal, np.float64)).grid
+    return GridModel(gap, keep_open).fit(points, mask, points, mask, 0.05, np.asarray(goal, np.float64))
 
 
 def test_the_grid_distance_is_a_lower_bound_of_the_distance_to_the_points():
     points = RNG.uniform(-2.0, 2.0, (300, 3)).astype(np.float32)
-    grid = fit(points, (0.0, 0.0, 3.0), gap=0.3)
+    fitted = fit(points, (0.0, 0.0, 3.0), gap=0.3)
     queries = RNG.uniform(-4.0, 4.0, (4000, 3)).astype(np.float32)
     truth = np.min(np.linalg.norm(queries[:, None] - points[None], axis=-1), axis=1)
-    bound = np.asarray(grid_distance(grid, jnp.asarray(queries)))
+    bound = np.asarray(still_distance(fitted, jnp.asarray(queries)))
     assert np.all(bound <= truth + 1e-5)
     # Outside the cloud's box by more than the reach (REACH gaps) no closed cell is farther from a
     # point than the reach: there the bound is within it and two half cell diagonals.
     outside = np.max(np.abs(queries), axis=1) > 2.0 + REACH * 0.3
-    assert np.all(truth[outside] - bound[outside] <= REACH * 0.3 + float(grid.spacing) * np.sqrt(3.0) + 1e-5)
+    assert np.all(truth[outside] - bound[outside] <= REACH * 0.3 + float(fitted.grid.spacing) * np.sqrt(3.0) + 1e-5)
 
 
 def test_above_the_grid_the_bound_holds_and_is_at_least_the_height_above_it():
@@ -51,11 +51,11 @@ def test_above_the_grid_the_bound_holds_and_is_at_least_the_height_above_it():
     the box), where the distance to a cell at the box's top less the height had made them look deep
     inside the slab."""
     points = np.concatenate([RNG.uniform([1.0, -1.0, 0.0], [3.0, 1.0, 0.5], (400, 3))]).astype(np.float32)
-    grid = fit(points, (2.0, 0.0, 1.5), gap=0.3)
-    top = float(grid.origin[2] + grid.spacing * (grid.array().shape[2] - 1))
+    fitted = fit(points, (2.0, 0.0, 1.5), gap=0.3)
+    top = float(fitted.grid.origin[2] + fitted.grid.spacing * (fitted.grid.array().shape[2] - 1))
     queries = RNG.uniform([-4.0, -4.0, top], [8.0, 4.0, top + 10.0], (3000, 3)).astype(np.float32)
     truth = np.min(np.linalg.norm(queries[:, None] - points[None], axis=-1), axis=1)
-    bound = np.asarray(grid_distance(grid, jnp.asarray(queries)))
+    bound = np.asarray(still_distance(fitted, jnp.asarray(queries)))
     assert np.all(bound <= truth + 1e-5)
     assert np.all(bound >= queries[:, 2] - top - 1e-5)
 
@@ -64,8 +64,8 @@ def test_a_free_cell_near_the_points_holds_the_exact_distance_to_the_points_and_
     """Free cells within EXACT_BAND of the points (of 6000 drawn): the nearer of the points (brute
     force) and the centres of the closed cells that hold no point (closed cells have negative values)."""
     points = RNG.uniform(-2.0, 2.0, (300, 3)).astype(np.float32)
-    grid = fit(points, (0.0, 0.0, 3.0), gap=0.3)
-    values, h, origin = grid.array(), float(grid.spacing), np.asarray(grid.origin, np.float64)
+    fitted = fit(points, (0.0, 0.0, 3.0), gap=0.3)
+    values, h, origin = fitted.grid.array(), float(fitted.grid.spacing), np.asarray(fitted.grid.origin, np.float64)
     # The cells that hold a point as the fit rounds them: by its float64 origin and spacing, not the grid's float32.
     lower, spacing, _ = grid_box(points.astype(np.float64), np.stack([BASE, (0.0, 0.0, 3.0)]), GridModel(0.3, 0.2))
     hit = np.zeros(values.shape, bool)
@@ -89,25 +89,25 @@ def test_a_wall_sampled_at_the_papers_density_is_closed_and_its_opening_kept():
     points = wall(4.0, 2.4)
     gap = sampling_gap(points)
     assert 0.3 < gap < 0.8
-    grid = fit(points, (4.0, 0.0, 0.0), gap)
+    fitted = fit(points, (4.0, 0.0, 0.0), gap)
     yz = np.stack(np.meshgrid(np.linspace(-2.3, 2.3, 24), np.linspace(-2.3, 2.3, 24)), -1).reshape(-1, 2)
     solid = yz[np.max(np.abs(yz), axis=1) > 1.2 + 0.5]
     on_wall = jnp.asarray(np.column_stack([np.full(len(solid), 3.0), solid]), jnp.float32)
-    assert np.all(np.asarray(grid_distance(grid, on_wall)) < 0.2)
-    assert float(grid_distance(grid, jnp.asarray([3.0, 0.0, 0.0]))) > 0.2 + 0.1
+    assert np.all(np.asarray(still_distance(fitted, on_wall)) < 0.2)
+    assert float(still_distance(fitted, jnp.asarray([3.0, 0.0, 0.0]))) > 0.2 + 0.1
 
 
 def test_the_points_alone_leave_the_robot_room_in_the_wall_that_the_model_closes():
     """The reason for the model: somewhere on the sampled wall the nearest point is farther than the
     robot's radius, while the model closes it."""
     points = wall(4.0, 2.4)
-    grid = fit(points, (4.0, 0.0, 0.0), sampling_gap(points))
+    fitted = fit(points, (4.0, 0.0, 0.0), sampling_gap(points))
     yz = np.stack(np.meshgrid(np.linspace(-2.3, 2.3, 47), np.linspace(-2.3, 2.3, 47)), -1).reshape(-1, 2)
     yz = yz[np.max(np.abs(yz), axis=1) > 1.2 + 0.5]
     probes = np.column_stack([np.full(len(yz), 3.0), yz]).astype(np.float32)
     nearest = np.min(np.linalg.norm(probes[:, None] - points[None], axis=-1), axis=1)
     assert nearest.max() > 0.2
-    assert np.all(np.asarray(grid_distance(grid, jnp.asarray(probes))) < 0.2)
+    assert np.all(np.asarray(still_distance(fitted, jnp.asarray(probes))) < 0.2)
 
 
 def test_the_guide_measures_the_way_round_a_wall_through_its_window():
@@ -119,8 +119,8 @@ def test_the_guide_measures_the_way_round_a_wall_through_its_window():
     yz = yz[~((yz[:, 0] > 2.0) & (yz[:, 0] < 3.2) & (np.abs(yz[:, 1]) < 0.6))]
     points = np.column_stack([np.full(len(yz), 3.0), yz]).astype(np.float32)
     goal, start = np.array([4.0, 0.0, 0.0]), np.array([2.0, 0.0, 0.0])
-    grid = fit(points, goal, gap=0.1)
-    field = Guide(0.2).fit(grid, goal)
+    fitted = fit(points, goal, gap=0.1)
+    field = Guide(0.2).fit(fitted, goal)
     hole = np.array([3.0, 2.6, 0.0])
     legs = np.linalg.norm(start - hole) + np.linalg.norm(hole - goal)
     guided = float(guided_distance(field, jnp.asarray(start, jnp.float32)))
@@ -182,14 +182,14 @@ def test_an_opening_of_the_robots_diameter_and_a_margin_stays_open_in_a_closed_w
     (round the 6 m wide wall would be over 6 m)."""
     points = wall(16.0, 1.0, seed=seed)
     goal, start = np.array([4.0, 0.0, 0.0]), np.array([2.0, 0.0, 0.0])
-    grid = fit(points, goal, sampling_gap(points))
+    fitted = fit(points, goal, sampling_gap(points))
     yz = np.stack(np.meshgrid(np.linspace(-2.3, 2.3, 24), np.linspace(-2.3, 2.3, 24)), -1).reshape(-1, 2)
     solid = yz[np.max(np.abs(yz), axis=1) > 0.5 + 0.5]
     on_wall = jnp.asarray(np.column_stack([np.full(len(solid), 3.0), solid]), jnp.float32)
-    assert np.all(np.asarray(grid_distance(grid, on_wall)) < 0.2)
-    centre = tuple(np.rint((np.array([3.0, 0.0, 0.0]) - grid.origin) / grid.spacing).astype(int))
-    assert grid.array()[centre] >= 0.2
-    field = Guide(0.2).fit(grid, goal)
+    assert np.all(np.asarray(still_distance(fitted, on_wall)) < 0.2)
+    centre = tuple(np.rint((np.array([3.0, 0.0, 0.0]) - fitted.grid.origin) / fitted.grid.spacing).astype(int))
+    assert fitted.grid.array()[centre] >= 0.2
+    field = Guide(0.2).fit(fitted, goal)
     assert 2.0 <= float(guided_distance(field, jnp.asarray(start, jnp.float32))) < 2.0 * 1.15
 
 
@@ -218,15 +218,15 @@ def test_a_window_through_a_thick_wall_narrower_than_the_first_closings_span_sta
     points = thick_wall(16.0, 1.0, seed=seed)
     gap = sampling_gap(points)
     assert 1.0 < 2 * REACH * gap
-    grid = fit(points, np.array([4.5, 0.0, 0.0]), gap)
+    fitted = fit(points, np.array([4.5, 0.0, 0.0]), gap)
     yz = np.stack(np.meshgrid(np.linspace(-2.3, 2.3, 24), np.linspace(-2.3, 2.3, 24)), -1).reshape(-1, 2)
     solid = yz[np.max(np.abs(yz), axis=1) > 0.5 + 0.5]
     for x in (3.0, 3.3):
         on_wall = jnp.asarray(np.column_stack([np.full(len(solid), x), solid]), jnp.float32)
-        assert np.all(np.asarray(grid_distance(grid, on_wall)) < 0.2)
-    room = 0.5 - (2.0 - np.sqrt(3.0)) * gap - float(grid.spacing) * np.sqrt(3.0)
+        assert np.all(np.asarray(still_distance(fitted, on_wall)) < 0.2)
+    room = 0.5 - (2.0 - np.sqrt(3.0)) * gap - float(fitted.grid.spacing) * np.sqrt(3.0)
     assert room > 0.2
-    assert float(grid_distance(grid, jnp.asarray([3.15, 0.0, 0.0]))) >= room
+    assert float(still_distance(fitted, jnp.asarray([3.15, 0.0, 0.0]))) >= room
 
 
 def pillars(density: float, spacing: float, radius: float = 0.25, height: float = 4.0, seed: int = 0) -> np.ndarray:
@@ -257,13 +257,13 @@ def test_the_lanes_between_separate_pillars_stay_open_and_their_surfaces_closed(
     gap = sampling_gap(points)
     assert 2 * REACH * gap > 1.0
     goal, start = np.array([6.0, 0.75, 2.0]), np.array([1.0, 0.75, 2.0])
-    grid = fit(points, goal, gap)
+    fitted = fit(points, goal, gap)
     angle, z = np.meshgrid(np.linspace(0, 2 * np.pi, 24), np.linspace(0.5, 3.5, 7))
     face = np.column_stack([2.0 + 0.25 * np.cos(angle.ravel()), 0.25 * np.sin(angle.ravel()), z.ravel()])
-    assert np.all(np.asarray(grid_distance(grid, jnp.asarray(face, jnp.float32))) < 0.2)
+    assert np.all(np.asarray(still_distance(fitted, jnp.asarray(face, jnp.float32))) < 0.2)
     lanes = np.array([[x, y, 2.0] for x in (2.0, 3.5, 5.0) for y in (-0.75, 0.75)], np.float32)
-    assert np.all(np.asarray(grid_distance(grid, jnp.asarray(lanes))) >= 0.2 + 0.05)
-    field = Guide(0.2).fit(grid, goal)
+    assert np.all(np.asarray(still_distance(fitted, jnp.asarray(lanes))) >= 0.2 + 0.05)
+    field = Guide(0.2).fit(fitted, goal)
     straight = float(np.linalg.norm(goal - start))
     assert straight <= float(guided_distance(field, jnp.asarray(start, jnp.float32))) < straight * 1.15
 
@@ -278,14 +278,14 @@ def test_a_lane_narrower_than_a_samples_hole_stays_open_between_separate_pillars
     points = pillars(16.0, 1.2, seed=seed)
     gap = sampling_gap(points)
     assert 2 * gap > 0.7 > LINK * gap
-    grid = fit(points, np.array([6.0, 0.6, 2.0]), gap)
+    fitted = fit(points, np.array([6.0, 0.6, 2.0]), gap)
     angle, z = np.meshgrid(np.linspace(0, 2 * np.pi, 24), np.linspace(0.5, 3.5, 7))
     face = np.column_stack([3.2 + 0.25 * np.cos(angle.ravel()), 0.25 * np.sin(angle.ravel()), z.ravel()])
-    assert np.all(np.asarray(grid_distance(grid, jnp.asarray(face, jnp.float32))) < 0.2)
+    assert np.all(np.asarray(still_distance(fitted, jnp.asarray(face, jnp.float32))) < 0.2)
     lanes = np.array([[x, y, z] for x in (2.0, 3.2, 4.4) for y in (-0.6, 0.6) for z in (1.0, 2.0, 3.0)], np.float32)
-    room = 0.35 - (2.0 - np.sqrt(3.0)) * gap - float(grid.spacing) * np.sqrt(3.0)
+    room = 0.35 - (2.0 - np.sqrt(3.0)) * gap - float(fitted.grid.spacing) * np.sqrt(3.0)
     assert room > 0.05
-    assert np.all(np.asarray(grid_distance(grid, jnp.asarray(lanes))) >= room)
+    assert np.all(np.asarray(still_distance(fitted, jnp.asarray(lanes))) >= room)
 
 
 def test_the_guides_gradient_at_a_cell_is_numpys_over_the_whole_grid():
@@ -311,14 +311,14 @@ def test_a_pose_goals_way_in_stays_open_where_the_samples_holes_are_as_wide_as_t
     mask = np.ones(len(points), bool)
     model = GridModel(gap, 0.2, corridor_radius=0.4, corridor_length=2.0)
     in_port = jnp.asarray([[x, 0.0, 0.0] for x in (1.5, 2.0, 2.5, 3.0)], jnp.float32)
-    with_pose = model.fit(points, mask, points, mask, 0.05, pose).grid
-    assert np.all(np.asarray(grid_distance(with_pose, in_port)) >= 0.2 + 0.05)
-    in_front = model.fit(points, mask, points, mask, 0.05, np.array([2.0, 0.0, 0.0])).grid
+    with_pose = model.fit(points, mask, points, mask, 0.05, pose)
+    assert np.all(np.asarray(still_distance(with_pose, in_port)) >= 0.2 + 0.05)
+    in_front = model.fit(points, mask, points, mask, 0.05, np.array([2.0, 0.0, 0.0]))
     yz = np.stack(np.meshgrid(np.linspace(-2.3, 2.3, 24), np.linspace(-2.3, 2.3, 24)), -1).reshape(-1, 2)
     beside = yz[np.linalg.norm(yz, axis=1) > 0.4 + 1.0]
     on_wall = jnp.asarray(np.column_stack([np.full(len(beside), 3.0), beside]), jnp.float32)
-    np.testing.assert_array_equal(np.asarray(grid_distance(with_pose, on_wall)),
-                                  np.asarray(grid_distance(in_front, on_wall)))
+    np.testing.assert_array_equal(np.asarray(still_distance(with_pose, on_wall)),
+                                  np.asarray(still_distance(in_front, on_wall)))
 
 
 def test_a_moving_ball_beside_a_wall_is_closed_and_scored_where_it_will_be():

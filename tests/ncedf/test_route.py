@@ -397,7 +397,7 @@ def test_a_position_goals_route_arrives_along_the_free_path_from_the_base(monkey
     goal = np.array([4.5, 0.0, 2.6])
     mask = np.ones(len(slabs), bool)
     grid = GridModel(0.1, 0.2).fit(slabs, mask, slabs, mask, 0.05, goal)
-    field = Guide(0.2).fit(grid.grid, goal)
+    field = Guide(0.2).fit(grid, goal)
     asked = []
     monkeypatch.setattr("ncedf.recovery.plan_route", lambda *args, **kwargs: asked.append(args[6]))
     spec = RobotSpec(n_links=5)
