@@ -2,7 +2,12 @@
 
 The convex model (``ncedf.obstacle_model``) closes a sparsely sampled surface by
 its cluster's hull, which closes a wall's window too. The grid model closes it
-without assuming convexity:
+without assuming convexity. First the static points are cut into parts at empty
+slabs that one obstacle's samples would not leave (``ncedf.parts``); the
+``MAX_CLUSTERS`` largest convex parts are closed as their polytopes
+(``ncedf.convex.fit_part``: exact for a box, within a chord for a pillar, where
+the grid's closing moves every edge out), unless together they shut the goal in
+(then every part goes to the grid); the other points are closed on the grid:
 
 * cells: a grid of spacing ``h`` over the static points, the goal and the robot's
   base (the world origin), grown by ``pad``; ``h`` is ``resolution``, coarsened

@@ -12,8 +12,9 @@ state's distance is then the smaller of the representation's and a lower bound
 of the body's clearance to the model, every polytope moved at the mean velocity
 of its points to the state's time.
 
-:class:`ncedf.grid_model.GridModel` closes the static cloud on a voxel grid instead,
-without assuming convexity, and the rows seen to move into their clusters' polytopes;
+:class:`ncedf.grid_model.GridModel` closes the static cloud without assuming convexity
+instead: the parts that empty slabs cut apart as polytopes where convex, the rest on
+a voxel grid, and the rows seen to move into their clusters' polytopes;
 :func:`model_clearance` scores a state against either fit.
 
 The fit runs in numpy outside the jitted step (a static group of points is

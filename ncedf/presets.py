@@ -26,7 +26,8 @@
     window, a cabinet, a pipe): the convex model would close its concavity, so
     the still points are closed on a grid instead (the grid model, at the
     widest hole expected between the samples, ``Observation.gap``, less where
-    that would shut the goal in); the goal cost measures the tip's distance
+    that would shut the goal in; the convex parts that empty slabs cut out of
+    them, a field of pillars, as polytopes); the goal cost measures the tip's distance
     along the model's free space (the guide), which leads it round walls to an
     opening; and as with the convex model it is repelled less and escapes
     stalls, its routes planned round the grid and into the opening along the
