@@ -71,6 +71,7 @@ largest clusters (by point count) are kept when there are more.
 from __future__ import annotations
 
 import functools
+import itertools
 from typing import NamedTuple
 
 import jax
@@ -83,6 +84,11 @@ from scipy.spatial import ConvexHull, QhullError, cKDTree
 from ncedf.robot import RobotSpec
 from ncedf.shapes import SphereShape
 
+#: The directions of the support planes that cut a convex part's box corners (:func:`corner_planes`):
+#: the diagonals of the coordinate planes.
+DIAGONALS = np.array([v for v in itertools.product((-1.0, 0.0, 1.0), repeat=3) if sum(map(abs, v)) == 2]) / np.sqrt(2.0)
+#: The planes a convex part's polytope holds at most with its corner planes.
+CORNER_PLANES = 4
 #: Clusters a :class:`Polytopes` holds (the largest are kept).
 MAX_CLUSTERS = 8
 #: Hull planes per polytope (besides its bounding box's six).
@@ -339,9 +345,32 @@ def fit_polytopes(points: np.ndarray, link: float, groups: np.ndarray | None = N
 
 def fit_part(points: np.ndarray) -> tuple:
     """One convex obstacle's points (P, 3) closed whole, without clustering: :func:`fit_polytope`'s
-    four arrays and :func:`fit_sphere`'s result (a sphere's polytope without hull planes)."""
+    four arrays, its free plane slots up to ``CORNER_PLANES`` filled by :func:`corner_planes`, and
+    :func:`fit_sphere`'s result (a sphere's polytope without planes)."""
     sphere = fit_sphere(points)
-    return (*fit_polytope(points, planes=sphere is None), sphere)
+    lower, upper, normals, offsets = fit_polytope(points, planes=sphere is None)
+    if sphere is None:
+        normals, offsets = corner_planes(points, lower, upper, normals, offsets)
+    return lower, upper, normals, offsets, sphere
+
+
+def corner_planes(points: np.ndarray, lower: np.ndarray, upper: np.ndarray, normals: np.ndarray,
+                  offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The planes (K, 3), (K,) with support planes of the points (P, 3) along the ``DIAGONALS`` added
+    up to ``CORNER_PLANES`` in all, those that cut deepest into the box [lower, upper] first (where
+    they cut over ``PLANE_TOLERANCE`` and their supporting point lies off the box's faces along the
+    direction, as :func:`fit_polytope`'s hull planes: a box's own corner is cut where its samples
+    stop short of it). A pillar's hull has no face large enough to keep, and its box's
+    corners stand 0.41 radii off it; each plane holds every point, so the polytope still holds their hull."""
+    support = points @ DIAGONALS.T  # (P, D)
+    top = points[np.argmax(support, axis=0)]  # (D, 3) each direction's supporting point
+    on_box = np.any((DIAGONALS != 0) & ((np.abs(top - lower) < PLANE_TOLERANCE) | (np.abs(top - upper) < PLANE_TOLERANCE)),
+                    axis=1)  # a box's corner whose samples stop short of it: the plane would cut the box
+    box = np.maximum(DIAGONALS * lower, DIAGONALS * upper).sum(axis=1)  # (D,) the box's support
+    depth = np.where(on_box, 0.0, box - support.max(axis=0))
+    order = [d for d in np.argsort(-depth, kind="stable") if depth[d] > PLANE_TOLERANCE]
+    extra = order[:max(CORNER_PLANES - len(offsets), 0)]
+    return (np.concatenate([normals, DIAGONALS[extra]]), np.concatenate([offsets, support.max(axis=0)[extra]]))
 
 
 def pack(found: list[tuple], velocity: np.ndarray | None = None, left_out: int = 0) -> Polytopes:

@@ -50,7 +50,7 @@ def fit(points: np.ndarray, goal, keep_open: float = 0.2):
     return GridModel(sampling_gap(points), keep_open).fit(points, mask, points, mask, 0.05, np.asarray(goal, float))
 
 
-@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("seed", [0, 1])
 def test_two_boxes_half_a_metre_apart_are_two_convex_parts_scored_at_their_exact_distance(seed):
     """Two 1 x 2 x 3 m boxes 0.5 m apart along x (less than two sampling gaps: the grid alone
     closes most of the lane between them): two parts, each convex, so the model's distance is
