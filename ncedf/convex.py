@@ -87,8 +87,11 @@ from ncedf.shapes import SphereShape
 #: The directions of the support planes that cut a convex part's box corners (:func:`corner_planes`):
 #: the diagonals of the coordinate planes.
 DIAGONALS = np.array([v for v in itertools.product((-1.0, 0.0, 1.0), repeat=3) if sum(map(abs, v)) == 2]) / np.sqrt(2.0)
-#: The planes a convex part's polytope holds at most with its corner planes.
+#: The planes a convex part's polytope holds at most with its corner planes (at most ``MAX_PLANES``).
 CORNER_PLANES = 4
+#: A corner plane's depth times its edge's length, in square gaps, where the samples show the edge
+#: empty (:func:`corner_planes`): pi / sqrt(2).
+CORNER_EVIDENCE = np.pi / np.sqrt(2.0)
 #: Clusters a :class:`Polytopes` holds (the largest are kept).
 MAX_CLUSTERS = 8
 #: Hull planes per polytope (besides its bounding box's six).
@@ -198,7 +201,7 @@ def clusters(points: np.ndarray, link: float, groups: np.ndarray | None = None, 
     return labels
 
 
-def _hull(points: np.ndarray):
+def convex_hull(points: np.ndarray):
     """The convex hull of the points (P, 3), or None where they span no volume (fewer than 4, or
     all on a plane or line)."""
     try:
@@ -207,14 +210,18 @@ def _hull(points: np.ndarray):
         return None
 
 
+def triangle_areas(corners: np.ndarray) -> np.ndarray:
+    """(F,) the areas of the triangles of corners (F, 3, 3), m^2."""
+    return 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=-1)
+
+
 def _hull_planes(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Merged hull planes (normals (Q, 3), offsets (Q,), areas (Q,)), largest first; none if degenerate."""
-    hull = _hull(points)
+    hull = convex_hull(points)
     if hull is None:
         return np.zeros((0, 3)), np.zeros(0), np.zeros(0)
     normals, offsets = hull.equations[:, :3], -hull.equations[:, 3]
-    tri = points[hull.simplices]
-    areas = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=-1)
+    areas = triangle_areas(points[hull.simplices])
     keys = np.round(np.concatenate([normals, offsets[:, None]], axis=1) / PLANE_TOLERANCE).astype(np.int64)
     _, group = np.unique(keys, axis=0, return_inverse=True)
     group = group.reshape(-1)
@@ -268,7 +275,7 @@ def hull_depth(points: np.ndarray) -> float:
     """How deep the deepest of the points (P, 3) lies inside their convex hull, m: the least
     distance to a hull face's plane (0 where every point is on the hull's boundary, and where
     the points span no volume)."""
-    hull = _hull(points)
+    hull = convex_hull(points)
     if hull is None:
         return 0.0
     depth = -(points @ hull.equations[:, :3].T + hull.equations[:, 3])  # (P, F) >= 0 up to rounding
@@ -343,31 +350,33 @@ def fit_polytopes(points: np.ndarray, link: float, groups: np.ndarray | None = N
     return pack(found, velocity, left_out)
 
 
-def fit_part(points: np.ndarray) -> tuple:
-    """One convex obstacle's points (P, 3) closed whole, without clustering: :func:`fit_polytope`'s
-    four arrays, its free plane slots up to ``CORNER_PLANES`` filled by :func:`corner_planes`, and
-    :func:`fit_sphere`'s result (a sphere's polytope without planes)."""
+def fit_part(points: np.ndarray, gap: float) -> tuple:
+    """One convex obstacle's points (P, 3), sampled with holes of radius ``gap`` m, closed whole,
+    without clustering: :func:`fit_polytope`'s four arrays, its free plane slots up to
+    ``CORNER_PLANES`` filled by :func:`corner_planes`, and :func:`fit_sphere`'s result (a sphere's
+    polytope without planes)."""
     sphere = fit_sphere(points)
     lower, upper, normals, offsets = fit_polytope(points, planes=sphere is None)
     if sphere is None:
-        normals, offsets = corner_planes(points, lower, upper, normals, offsets)
+        normals, offsets = corner_planes(points, lower, upper, normals, offsets, gap)
     return lower, upper, normals, offsets, sphere
 
 
 def corner_planes(points: np.ndarray, lower: np.ndarray, upper: np.ndarray, normals: np.ndarray,
-                  offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                  offsets: np.ndarray, gap: float) -> tuple[np.ndarray, np.ndarray]:
     """The planes (K, 3), (K,) with support planes of the points (P, 3) along the ``DIAGONALS`` added
-    up to ``CORNER_PLANES`` in all, those that cut deepest into the box [lower, upper] first (where
-    they cut over ``PLANE_TOLERANCE`` and their supporting point lies off the box's faces along the
-    direction, as :func:`fit_polytope`'s hull planes: a box's own corner is cut where its samples
-    stop short of it). A pillar's hull has no face large enough to keep, and its box's
-    corners stand 0.41 radii off it; each plane holds every point, so the polytope still holds their hull."""
+    up to ``CORNER_PLANES`` in all, those that cut deepest into the box [lower, upper] first, where
+    the samples show the box's edge empty: cut d deep along an edge of length L, a box's two faces
+    would hold strips of width ``sqrt(2) d`` along it without a sample, ``2 sqrt(2) d L`` m^2, empty
+    with probability at most ``n^-2`` at the cloud's ``gap`` (``ncedf.parts``: ``pi rho gap^2 =
+    ln n``) where ``d L >= CORNER_EVIDENCE gap^2``. A pillar's box (8 m edges) is cut at its four
+    vertical edges (0.41 radii deep); a box whose samples stop a few cm short of its edges is not.
+    Each plane holds every point, so the polytope still holds their hull."""
     support = points @ DIAGONALS.T  # (P, D)
-    top = points[np.argmax(support, axis=0)]  # (D, 3) each direction's supporting point
-    on_box = np.any((DIAGONALS != 0) & ((np.abs(top - lower) < PLANE_TOLERANCE) | (np.abs(top - upper) < PLANE_TOLERANCE)),
-                    axis=1)  # a box's corner whose samples stop short of it: the plane would cut the box
     box = np.maximum(DIAGONALS * lower, DIAGONALS * upper).sum(axis=1)  # (D,) the box's support
-    depth = np.where(on_box, 0.0, box - support.max(axis=0))
+    depth = box - support.max(axis=0)
+    length = (DIAGONALS == 0) @ (upper - lower)  # (D,) the edge's length: the box along the direction's zero axis
+    depth = np.where(depth * length >= CORNER_EVIDENCE * gap**2, depth, 0.0)
     order = [d for d in np.argsort(-depth, kind="stable") if depth[d] > PLANE_TOLERANCE]
     extra = order[:max(CORNER_PLANES - len(offsets), 0)]
     return (np.concatenate([normals, DIAGONALS[extra]]), np.concatenate([offsets, support.max(axis=0)[extra]]))

@@ -279,18 +279,23 @@ def _fit(data: bytes, anchors: bytes, corridor: bool, model: GridModel) -> tuple
     anchors = np.frombuffer(anchors, np.float64).reshape(-1, 3)
     origin, h, shape = grid_box(points, anchors, model)
     if len(points) == 0:  # no static obstacle: far everywhere
-        return padded(origin, h, np.full((2, 2, 2), FAR, np.float32), model.max_cells), pack([])
-    convex = [part for part in split(points, model.gap) if is_convex(points[part], model.gap)]
+        return padded(origin, h, np.full((2, 2, 2), FAR, np.float32), model.max_cells), on_device(pack([]))
+    convex = [part for part in split(points, model.gap) if is_convex(points[part], model.gap, INNER * REACH)]
     closed = sorted(convex, key=len, reverse=True)[:MAX_CLUSTERS]
     rest = np.ones(len(points), bool)
     rest[np.concatenate(closed or [np.zeros(0, int)])] = False
     field = _field(points[rest], anchors, corridor, model, origin, h, shape)
-    parts = pack([(part, fit_part(points[part])) for part in closed])
+    parts = pack([(part, fit_part(points[part], model.gap)) for part in closed])
     goal = goal_cell(anchors[-1], origin, h, shape)
     if closed and not goal_open(np.minimum(field, parts_field(parts, origin, h, shape)), goal, model.keep_open):
         # The parts shut the goal in: all on the grid, whose closing shrinks until a way opens.
         field, parts = _field(points, anchors, corridor, model, origin, h, shape), pack([])
-    return padded(origin, h, field, model.max_cells), parts
+    return padded(origin, h, field, model.max_cells), on_device(parts)
+
+
+def on_device(polytopes: Polytopes) -> Polytopes:
+    """The polytopes' arrays on the device (a cached fit is not copied each step, nor changed in place)."""
+    return jax.tree.map(jnp.asarray, polytopes)
 
 
 def goal_cell(goal: np.ndarray, origin: np.ndarray, h: float, shape: tuple) -> tuple:

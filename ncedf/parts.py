@@ -16,32 +16,32 @@ boxes of diagonal ``e`` (the smaller side's), a surface crossing as wide as they
 surface's cross-section is at least its diagonal long). At a density rho such a band
 is empty with probability ``exp(-rho A)``, and at the cloud's gap (``pi rho gap^2 =
 ln n``, ``ncedf.presets.sampling_gap``) ``n^(-A / (pi gap^2))``. A cut is made where
-that is at most ``n^-2`` (``s e >= 2 pi gap^2``) and the interval is at least a gap
-wide (more than the band's positions: a face's samples are never cut apart by the
-narrow empty bands that some of its strips leave). Between two pillars of a row
+that is at most ``n^-2`` (``s e >= 2 pi gap^2``; over the at most 3n intervals
+looked at, 3/n) and the interval is at least a gap wide (a face's samples are not
+cut apart by the narrow empty bands that some of its strips leave). It assumes one
+density over the cloud: an obstacle sampled more sparsely than the gap says is cut
+more readily. Between two pillars of a row
 (8 m tall, 0.36 m gaps) that is a gap; along one pillar (0.5 m across) a band of 1.1 m.
 
 A part is convex (:func:`is_convex`) where it has at least ``MIN_POINTS`` points (fewer
 tell a convex surface from a fragment of any other too poorly), they span a volume
 (a flat part, a plane's samples, may be a plate with holes), every point lies on
 their hull's boundary (``ncedf.convex.hull_depth``: else a concavity holds points)
-or on a sphere, and the hull's surface lies within ``COVER`` gaps of them (else it
+or on a sphere, and the hull's surface lies within ``cover`` gaps of them (else it
 spans an opening wider than a sampling hole: a thin plate's window, whose edges
-lie within a plate's thickness of the hull).
+lie within a plate's thickness of the hull; the grid model gives the span its own
+closing fills).
 """
 
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import ConvexHull, QhullError, cKDTree
+from scipy.spatial import cKDTree
 
-from ncedf.convex import CONVEX_TOLERANCE, fit_sphere, hull_depth
+from ncedf.convex import CONVEX_TOLERANCE, convex_hull, fit_sphere, hull_depth, triangle_areas
 
 #: The fewest points of a part closed as convex.
 MIN_POINTS = 20
-#: How far from the points, in gaps, the hull's surface of a convex part may lie: the grid model
-#: fills openings up to as wide (``ncedf.grid_model``: 2 ``INNER REACH`` gaps across).
-COVER = 1.5
 #: Surface samples per square gap that :func:`hull_cover` measures the hull's surface at.
 COVER_SAMPLES = 16
 #: The share of a cut's sides measured for their cross-section, in gaps from the cut.
@@ -51,7 +51,7 @@ NEAR_CUT = 2.0
 def cut(points: np.ndarray, gap: float) -> np.ndarray | None:
     """(P,) bool: the points (P, 3) on the lower side of the widest cut (module docstring) at
     holes of radius ``gap`` m, over the three axes; None where there is none."""
-    if gap <= 0:
+    if gap <= 0 or len(points) < 2:
         return None
     whole = np.linalg.norm(np.ptp(points, axis=0))
     best, side = max(gap, 2 * np.pi * gap**2 / max(whole, 1e-12)), None  # no cut is narrower (the whole set across)
@@ -75,7 +75,7 @@ def cut(points: np.ndarray, gap: float) -> np.ndarray | None:
 def split(points: np.ndarray, gap: float) -> list[np.ndarray]:
     """The parts of the points (P, 3): the index arrays of the sets left by cutting (:func:`cut`)
     until no cut remains, in the order of the points' first members."""
-    todo, parts = [np.arange(len(points))], []
+    todo, parts = [np.arange(len(points))] if len(points) else [], []
     while todo:
         index = todo.pop()
         lower = cut(points[index], gap) if len(index) > 1 else None
@@ -90,12 +90,11 @@ def hull_cover(points: np.ndarray, gap: float) -> float:
     """How far from the points (P, 3) their hull's surface reaches, m: the largest distance to them
     of ``COVER_SAMPLES`` surface points per ``gap^2`` drawn on the hull's triangles by area (a fixed
     draw); inf where the points span no volume."""
-    try:
-        hull = ConvexHull(points)
-    except (QhullError, ValueError):
+    hull = convex_hull(points)
+    if hull is None:
         return np.inf
     corners = points[hull.simplices]  # (F, 3, 3)
-    areas = 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=-1)
+    areas = triangle_areas(corners)
     rng = np.random.default_rng(0)
     count = int(np.ceil(COVER_SAMPLES * areas.sum() / gap**2))
     face = rng.choice(len(areas), count, p=areas / areas.sum())
@@ -105,9 +104,9 @@ def hull_cover(points: np.ndarray, gap: float) -> float:
     return float(cKDTree(points).query(samples)[0].max())
 
 
-def is_convex(points: np.ndarray, gap: float) -> bool:
+def is_convex(points: np.ndarray, gap: float, cover: float) -> bool:
     """Whether the points (P, 3), sampled with holes of radius ``gap`` m, lie on a convex surface
-    (module docstring)."""
-    if len(points) < MIN_POINTS or hull_cover(points, gap) > COVER * gap:
+    whose hull lies within ``cover`` gaps of them (module docstring)."""
+    if len(points) < MIN_POINTS or hull_cover(points, gap) > cover * gap:
         return False
     return hull_depth(points) <= CONVEX_TOLERANCE or fit_sphere(points) is not None
