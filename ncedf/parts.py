@@ -20,8 +20,8 @@ that is at most ``n^-2`` (``s e >= 2 pi gap^2``; over the at most 3n intervals
 looked at, 3/n) and the interval is at least a gap wide (a face's samples are not
 cut apart by the narrow empty bands that some of its strips leave). It assumes one
 density over the cloud: an obstacle sampled more sparsely than the gap says is cut
-more readily. Between two pillars of a row
-(8 m tall, 0.36 m gaps) that is a gap; along one pillar (0.5 m across) a band of 1.1 m.
+more readily. Between two pillars of a row (8 m tall, 0.36 m gaps) that is a gap;
+along one pillar (0.5 m across) a band of 1.1 m.
 
 A part is convex (:func:`is_convex`) where it has at least ``MIN_POINTS`` points (fewer
 tell a convex surface from a fragment of any other too poorly), they span a volume

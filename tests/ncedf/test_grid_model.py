@@ -8,7 +8,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 from ncedf.controller import Controller, ControllerConfig
-from ncedf.grid_model import EXACT_BAND, LINK, REACH, GridModel, fit_clearance, grid_box, grid_distance, still_distance
+from ncedf.grid_model import EXACT_BAND, LINK, REACH, GridModel, fit_clearance, grid_box, still_distance
 from ncedf.guide import Guide, _gradient_at, guided_distance
 from ncedf.presets import Observation, ours, sampling_gap
 from ncedf.robot import BASE, RobotSpec, forward_kinematics
