@@ -306,23 +306,26 @@ def test_a_sweep_killed_midway_finishes_every_episode_once_when_run_again(swept,
 
 
 def test_a_dead_worker_is_replaced_and_the_sweep_finishes(swept, tmp_path):
-    """SIGKILL to one of two workers alone (as a crash) once an episode is complete: the broken pool's
-    other worker is killed (it outlived the pool and wrote the episodes run again), a fresh pool runs
-    what the round left, and the sweep ends with every episode complete, exit status 0."""
+    """SIGKILL to one of two workers alone (as a crash) once an episode is complete, while the other is
+    recording: the broken pool's other worker is killed (it outlived the pool and wrote the episodes run
+    again), a fresh pool runs what the round left, and the sweep ends with every episode complete, exit
+    status 0. Eight episodes of a few tenths of a second each, so that the poll finds a worker recording."""
     out = tmp_path / "runs"
     shutil.copytree(swept[0] / JAX_CACHE, out / JAX_CACHE)
-    stems = [out / episode_name(tiny(e)) for e in range(4)]
+    envs = 8
+    stems = [out / episode_name(tiny(e)) for e in range(envs)]
     proc = subprocess.Popen([sys.executable, "-m", "scenarios.sweep", *TINY, "--max-steps", str(STEPS), "--envs",
-                             "4", "--workers", "2", "--out", str(out)], stdout=subprocess.PIPE,
+                             str(envs), "--workers", "2", "--out", str(out)], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, start_new_session=True)
     deadline = time.monotonic() + 120
-    workers = []  # once an episode is complete: one worker idle, the other recording (mid-episode)
+    complete, workers = False, []  # the one to kill first (idle where one is), then one recording
     while len(workers) < 2 and time.monotonic() < deadline and proc.poll() is None:
         time.sleep(0.01)
-        if any(read_complete(s, ("mcap",)) for s in stems):
+        complete = complete or any(read_complete(s, ("mcap",)) for s in stems)
+        if complete:
             writing = {pid: recording_open(pid) for pid in spawned(proc.pid)}
-            if sum(writing.values()) == 1:
-                workers = sorted(writing, key=writing.get)  # the idle one first
+            if len(writing) == 2 and any(writing.values()):
+                workers = sorted(writing, key=writing.get)
     assert len(workers) == 2
     os.kill(workers[0], signal.SIGKILL)
     try:
