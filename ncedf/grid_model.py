@@ -398,6 +398,14 @@ def still_distance(fit: GridFit, x: jnp.ndarray) -> jnp.ndarray:
     return nearer(grid_distance(fit.grid, x), x, fit.parts)
 
 
+def smooth_distance(fit: GridFit, x: jnp.ndarray) -> jnp.ndarray:
+    """(...,) the still points' field at points x (..., 3) interpolated trilinearly between its cell
+    values, or the parts' distance where less, m: continuous, its gradient pointing away from the
+    points (to climb clear of them, ``ncedf.route``); not a bound, unlike :func:`still_distance`."""
+    values, weights = corners(fit.grid, x)
+    return nearer(jnp.sum(values * weights, axis=-1), x, fit.parts)
+
+
 def fit_clearance(arcs: jnp.ndarray, frames: jnp.ndarray, spec: RobotSpec, fit: GridFit, t=0.0,
                   turning: bool = False) -> jnp.ndarray:
     """(B...,) lower bound of the clearance of the bodies (arcs (B..., M, 3), their frames

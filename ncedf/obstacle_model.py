@@ -26,10 +26,13 @@ from __future__ import annotations
 
 import dataclasses
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
-from ncedf.convex import Polytopes, fit_polytopes, observed_motion, robot_clearance
-from ncedf.grid_model import GridFit, fit_clearance
+from ncedf.convex import COVER_SPHERES, Polytopes, fit_polytopes, observed_motion, polytope_distance, robot_clearance
+from ncedf.grid_model import GridFit, fit_clearance, smooth_distance
+from ncedf.shapes import SphereShape
 from ncedf.validate import check_fields
 
 
@@ -61,6 +64,25 @@ def model_clearance(fitted: Polytopes | GridFit, arcs, frames, spec, t=0.0, turn
     if isinstance(fitted, GridFit):
         return fit_clearance(arcs, frames, spec, fitted, t, turning)
     return robot_clearance(arcs, frames, spec, fitted, t, turning=turning)
+
+
+#: The soft minimum's temperature in :func:`soft_clearance`, m: the cover balls within a few of it
+#: of the nearest all count.
+SOFTNESS = 0.02
+
+
+def soft_clearance(fitted: Polytopes | GridFit, arc, frames, spec):
+    """() a smooth stand-in for the clearance of one state arc (M, 3) with frames (M + 1, 4, 4) to the
+    still part of a fitted model, m: a soft minimum over the cover balls of their distance (the grid's
+    interpolated, ``ncedf.grid_model.smooth_distance``), so that its gradient moves every ball near an
+    obstacle away from it. For climbing clear, not a bound (:func:`model_clearance` is)."""
+    geom = SphereShape(spec, per_link=COVER_SPHERES).prepare(arc, frames)
+    if isinstance(fitted, GridFit):
+        d = smooth_distance(fitted, geom.centres)
+    else:
+        d = polytope_distance(geom.centres, fitted)
+    d = jnp.minimum(d - geom.radius[..., None], 1e3)  # no polytope: +inf, which would stop the gradient
+    return -SOFTNESS * jax.nn.logsumexp(-d.ravel() / SOFTNESS)
 
 
 def static_part(fitted: Polytopes | GridFit) -> Polytopes | GridFit:

@@ -42,6 +42,11 @@ over arc lengths, checked against the convex model of the static obstacles
   dozen of some 30 000 with 4 links), its detours cut (:func:`shortcut`: a
   straight segment in arc lengths moves the tip along a curve, so the
   roadmap's path wanders).
+* where the roadmap holds no route (no goal state, or none connected), a second
+  try with goal states lifted clear (:class:`GoalLift`): among obstacles a body
+  refined onto the goal mostly lies in one, and climbing its soft clearance
+  in the tip's null space finds the few clear ways to the goal (a field of
+  pillars: a few tens of 3000 candidates).
 
 The route is the path's states, ``path_step`` apart in every arc length. The
 controller executes them (``ncedf.recovery``): each step's move along
@@ -66,13 +71,30 @@ from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
 from ncedf.convex import Polytopes
-from ncedf.obstacle_model import model_clearance
+from ncedf.obstacle_model import model_clearance, soft_clearance
 from ncedf.robot import RobotSpec, end_effector_pose, forward_kinematics, project_state, sample_arc_lengths
+from ncedf.validate import check_fields
 
 #: States per jitted clearance call (padded), so every call reuses one program.
 PASS = 4096
 #: Inner states of the edges checked in one batch (``edge_clearances``): 64 passes, a few tens of MB.
 EDGE_BATCH = 64 * PASS
+
+
+@dataclasses.dataclass(frozen=True)
+class GoalLift:
+    """The roadmap's second try (:func:`plan_route`): the ``candidates`` free states nearest the goal,
+    refined on the tip, then ``iterations`` more refinement steps, each also moving the state ``step`` m
+    (its largest arc length change) up the gradient of its soft clearance
+    (``ncedf.obstacle_model.soft_clearance``) within the tip's null space, so that bodies refined
+    into an obstacle climb out of it while the tip stays on the goal."""
+
+    candidates: int = 3000
+    iterations: int = 200
+    step: float = 0.02
+
+    def __post_init__(self):
+        check_fields(self, integers=("candidates", "iterations"), positive=("step",))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -100,6 +122,8 @@ class RouteConfig:
       path_step: the most any arc length changes between the path's states, m.
       lazy_rounds: rounds of :func:`lazy_shortest_path` before it checks every edge left (1: every edge
         checked after the first search, as if all were checked first).
+      lift: the goal states of the second try, where the first finds no route (:class:`GoalLift`, or
+        its fields as a dict).
     """
 
     samples: int = 5000
@@ -120,8 +144,13 @@ class RouteConfig:
     approach_back: float = 1.0
     path_step: float = 0.002
     lazy_rounds: int = 50
+    lift: GoalLift = GoalLift()
 
     def __post_init__(self):
+        if isinstance(self.lift, dict):
+            object.__setattr__(self, "lift", GoalLift(**self.lift))
+        if not isinstance(self.lift, GoalLift):
+            raise ValueError(f"RouteConfig.lift must be a GoalLift, got {type(self.lift).__name__}")
         for name in ("samples", "local_samples", "neighbours", "goal_candidates", "goal_iterations", "lazy_rounds",
                      "retract_steps"):
             value = getattr(self, name)
@@ -165,9 +194,9 @@ def around(start: jnp.ndarray, key, spec: RobotSpec, count: int, radius: float) 
     return jax.vmap(lambda arc: project_state(arc, spec))(start + scale * direction)
 
 
-@functools.partial(jax.jit, static_argnums=(2, 3, 4, 5, 7))
+@functools.partial(jax.jit, static_argnums=(2, 3, 4, 5, 7, 8))
 def _refine(arcs: jnp.ndarray, goal: jnp.ndarray, spec: RobotSpec, iterations: int, damping: float,
-            move: float, approach=None, weight: float = 0.0) -> jnp.ndarray:
+            move: float, approach=None, weight: float = 0.0, climb: float = 0.0, fitted=None) -> jnp.ndarray:
     """States ``arcs`` (K, M, 3), m, moved towards a tip at ``goal`` (3,) m by damped least squares
     (Levenberg-Marquardt with a fixed damping): each iteration moves a state by
     ``-J^T (J J^T + damping^2 I)^-1 e``, with e the tip error (3,) and J (3, 3M) the tip's Jacobian
@@ -175,7 +204,9 @@ def _refine(arcs: jnp.ndarray, goal: jnp.ndarray, spec: RobotSpec, iterations: i
     m, then projected onto the valid states. About twenty iterations put the tip on the goal where
     400 gradient steps left millimetres, in a tenth of the time. With an ``approach`` (3,) unit
     vector, e also holds ``weight`` times the errors of the tip's approach axis (its z axis) and of
-    the last link's base from a link's length straight behind the tip along it."""
+    the last link's base from a link's length straight behind the tip along it. With a ``fitted``
+    model, each iteration also moves the state ``climb`` m (its largest arc change) up the gradient of
+    its soft clearance to the model, less the part the damped tip Jacobian would turn into tip motion."""
     keep_sum = jnp.eye(3) - 1.0 / 3.0  # projector onto a link's zero-sum changes
 
     def error(arc):
@@ -189,8 +220,14 @@ def _refine(arcs: jnp.ndarray, goal: jnp.ndarray, spec: RobotSpec, iterations: i
     def one(arc):
         e = error(arc)
         jac = (jax.jacfwd(error)(arc) @ keep_sum).reshape(len(e), -1)  # (3 or 9, 3M)
-        delta = -jac.T @ jnp.linalg.solve(jac @ jac.T + damping**2 * jnp.eye(len(e)), e)
+        gram = jac @ jac.T + damping**2 * jnp.eye(len(e))
+        delta = -jac.T @ jnp.linalg.solve(gram, e)
         delta = delta * jnp.minimum(1.0, move / jnp.maximum(jnp.max(jnp.abs(delta)), 1e-12))
+        if fitted is not None:
+            grad = jax.grad(lambda a: soft_clearance(fitted, a, forward_kinematics(a, spec), spec))(arc)
+            grad = (jnp.where(jnp.isfinite(grad), grad, 0.0) @ keep_sum).reshape(-1)
+            up = grad - jac.T @ jnp.linalg.solve(gram, jac @ grad)
+            delta = delta + climb * up / jnp.maximum(jnp.max(jnp.abs(up)), 1e-12)
         return project_state(arc + delta.reshape(arc.shape), spec)
 
     return jax.lax.fori_loop(0, iterations, lambda _, q: jax.vmap(one)(q), arcs)
@@ -212,24 +249,31 @@ def tips(arcs: np.ndarray, spec: RobotSpec) -> np.ndarray:
     return ends(arcs, spec)[1]
 
 
-def _refined(states: np.ndarray, goal: np.ndarray, spec: RobotSpec, config: RouteConfig, approach=None) -> np.ndarray:
-    """:func:`_refine` of up to ``goal_candidates`` states (K, M, 3), padded to that many (one program)."""
-    padded = np.zeros((config.goal_candidates,) + states.shape[1:], np.float32)
+def _refined(states: np.ndarray, goal: np.ndarray, spec: RobotSpec, config: RouteConfig, approach=None,
+             size: int | None = None, fitted=None) -> np.ndarray:
+    """:func:`_refine` of up to ``size`` (default ``goal_candidates``) states (K, M, 3), padded to that many
+    (one program); with a ``fitted`` model, the lift's iterations climbing clear of it (:class:`GoalLift`)."""
+    padded = np.zeros((size or config.goal_candidates,) + states.shape[1:], np.float32)
     padded[:len(states)] = states
     padded[len(states):] = states[:1]
     direction = None if approach is None else jnp.asarray(approach, jnp.float32)
-    return np.asarray(_refine(jnp.asarray(padded), jnp.asarray(goal, jnp.float32), spec, config.goal_iterations,
-                              config.goal_damping, config.goal_move, direction,
-                              config.approach_weight))[:len(states)]
+    iterations, climb = (config.goal_iterations, 0.0) if fitted is None else (config.lift.iterations, config.lift.step)
+    return np.asarray(_refine(jnp.asarray(padded), jnp.asarray(goal, jnp.float32), spec, iterations,
+                              config.goal_damping, config.goal_move, direction, config.approach_weight, climb,
+                              fitted))[:len(states)]
 
 
 def goal_states(free: np.ndarray, goal: np.ndarray, spec: RobotSpec, polytopes: Polytopes,
-                config: RouteConfig, approach=None) -> np.ndarray:
+                config: RouteConfig, approach=None, lifted: bool = False) -> np.ndarray:
     """(G, M, 3) states whose tips are within ``goal_tolerance`` of ``goal`` and whose clearance is at least
     ``node_clearance``: the free states (F, M, 3) nearest the goal, refined (module docstring), on the tip
-    and, given an ``approach`` (3,) unit vector, on its approach axis too."""
-    near = np.argsort(np.linalg.norm(tips(free, spec) - goal, axis=1))[:config.goal_candidates]
-    moved = _refined(free[near], goal, spec, config, approach)
+    and, given an ``approach`` (3,) unit vector, on its approach axis too; ``lifted``: the lift's
+    candidates, refined on the tip, then lifted clear of the polytopes (:class:`GoalLift`)."""
+    size = config.lift.candidates if lifted else config.goal_candidates
+    near = np.argsort(np.linalg.norm(tips(free, spec) - goal, axis=1))[:size]
+    moved = _refined(free[near], goal, spec, config, approach, size)
+    if lifted:
+        moved = _refined(moved, goal, spec, config, approach, size, polytopes)
     axes, reached = ends(moved, spec)
     ok = ((np.linalg.norm(reached - goal, axis=1) <= config.goal_tolerance)
           & (clearances(moved, spec, polytopes) >= config.node_clearance))
@@ -351,6 +395,18 @@ def lazy_shortest_path(nodes: np.ndarray, i: np.ndarray, j: np.ndarray, w: np.nd
                                                   config.check_step) >= config.edge_clearance, 1, -1)
 
 
+def roadmap_path(others: np.ndarray, targets: np.ndarray, spec: RobotSpec, polytopes: Polytopes,
+                 config: RouteConfig) -> np.ndarray | None:
+    """(P, M, 3) the roadmap's shortest clear path from ``others[0]`` through the nodes ``others`` (N, M, 3) to
+    one of ``targets`` (G, M, 3) (:func:`lazy_shortest_path`), or None where there is none."""
+    if len(targets) == 0:
+        return None
+    nodes = np.concatenate([others, targets])
+    i, j, w = roadmap_edges(nodes, config.neighbours)
+    path = lazy_shortest_path(nodes, i, j, w, len(targets), spec, polytopes, config)
+    return None if path is None else nodes[path]
+
+
 def plan_route(spec: RobotSpec, polytopes: Polytopes, start, goal, key, config: RouteConfig = RouteConfig(),
                approach=None, aligned_only: bool = False) -> np.ndarray | None:
     """(S, M, 3) the states of a route from the state ``start`` (M, 3) m to one whose tip reaches ``goal`` (3,) m,
@@ -370,17 +426,17 @@ def plan_route(spec: RobotSpec, polytopes: Polytopes, start, goal, key, config: 
         aligned = goal_states(free, goal, spec, polytopes, config, np.asarray(approach, np.float64))
         chains = retraction_chains(aligned, goal, np.asarray(approach, np.float64), spec, polytopes, config)
         targets = np.concatenate([targets, aligned])
-    if len(targets) == 0:
-        return None
     local = np.asarray(around(jnp.asarray(start), jax.random.fold_in(key, 1), spec, config.local_samples,
                               config.local_radius), np.float32)
     local = local[clearances(local, spec, polytopes) >= config.edge_clearance]
-    nodes = np.concatenate([start[None], free, local, chains, targets])
-    i, j, w = roadmap_edges(nodes, config.neighbours)
-    path = lazy_shortest_path(nodes, i, j, w, len(targets), spec, polytopes, config)
+    others = np.concatenate([start[None], free, local, chains])
+    path = roadmap_path(others, targets, spec, polytopes, config)
+    if path is None and not aligned_only:  # the second try: goal states lifted clear of the obstacles
+        lifted = goal_states(free, goal, spec, polytopes, config, lifted=True)
+        path = roadmap_path(others, np.concatenate([targets, lifted]), spec, polytopes, config)
     if path is None:
         return None
-    path = shortcut(nodes[path], spec, polytopes, config)
+    path = shortcut(path, spec, polytopes, config)
     inner, segment = between(path[:-1], path[1:], config.path_step)
     order = np.argsort(np.concatenate([segment + 0.5, np.arange(len(path))]), kind="stable")
     return np.concatenate([inner, path])[order]

@@ -18,7 +18,7 @@ from ncedf.obstacle_model import ConvexModel
 from ncedf.recovery import RouteRecovery, RouteState
 from ncedf.robot import RobotSpec, config_to_arc_lengths, end_effector_pose, sample_arc_lengths, validate_state
 from ncedf.safety import SafetyFilter
-from ncedf.route import (RouteConfig, around, between, clearances, ends, goal_states, lazy_shortest_path,
+from ncedf.route import (GoalLift, RouteConfig, around, between, clearances, ends, goal_states, lazy_shortest_path,
                          plan_route, roadmap_edges, shortest_path, tips)
 from ncedf.shapes import make_shape
 from scenarios.observe import make_observer
@@ -113,6 +113,54 @@ def test_refine_puts_the_tip_on_a_reachable_goal(links):
     # one iteration moves no arc length by more than goal_move before the projection, which is non-expansive
     once, _ = refined(far, 1)
     assert np.max(np.linalg.norm(once - far, axis=-1)) <= np.sqrt(3) * config.goal_move + 1e-5
+
+
+#: A goal beside the bar at its height: most bodies refined onto it cross the bar. The lift's test settings.
+BESIDE = np.array([2.0, 0.0, 3.0])
+LIFT = dataclasses.replace(ROUTE, node_clearance=0.1, edge_clearance=0.05, lift=GoalLift(candidates=100, iterations=100))
+
+
+def _free(polytopes, config, key=5):
+    drawn = np.asarray(sample_arc_lengths(jax.random.PRNGKey(key), SPEC, (config.samples, SPEC.n_links)), np.float32)
+    return drawn[clearances(drawn, SPEC, polytopes) >= config.node_clearance]
+
+
+def test_the_lift_climbs_bodies_out_of_the_bar_with_the_tip_kept_on_the_goal(polytopes):
+    """Bodies refined onto the goal that cross the bar (by the exact distance) climb out of it in the tip's
+    null space: many end clear, the tips stay on the goal, and none that was clear ends in the bar."""
+    free = _free(polytopes, LIFT)
+    near = np.argsort(np.linalg.norm(tips(free, SPEC) - BESIDE, axis=1))[:LIFT.lift.candidates]
+    refined = route_module._refined(free[near], BESIDE, SPEC, LIFT, size=LIFT.lift.candidates)
+    lifted = route_module._refined(refined, BESIDE, SPEC, LIFT, size=LIFT.lift.candidates, fitted=polytopes)
+    before, after = _exact(refined), _exact(lifted)
+    inside = before < 0.0
+    assert inside.sum() >= 30
+    assert np.mean(after[inside] > 0.0) >= 0.2 and np.all(after[~inside] > 0.0)
+    assert np.median(after) > np.median(before) + 0.2
+    assert np.max(np.linalg.norm(tips(lifted, SPEC) - BESIDE, axis=1)) <= 0.05
+    for arc in lifted:
+        validate_state(arc, spec=SPEC)
+
+
+def test_lifted_goal_states_are_more_and_clear_of_the_bar(polytopes):
+    free = _free(polytopes, LIFT)
+    plain, lifted = (goal_states(free, BESIDE, SPEC, polytopes, LIFT, lifted=up) for up in (False, True))
+    assert len(lifted) > len(plain)
+    assert np.all(_exact(lifted) > 0.0)
+    assert np.max(np.linalg.norm(tips(lifted, SPEC) - BESIDE, axis=1)) <= LIFT.goal_tolerance
+
+
+def test_where_the_first_try_holds_no_goal_state_the_lifted_ones_give_the_route(polytopes, monkeypatch):
+    """The second try of plan_route: with the first try's goal states taken away, the route ends on a lifted
+    goal state, clear of the bar all the way by the exact distance."""
+    kept = goal_states
+    monkeypatch.setattr(route_module, "goal_states",
+                        lambda free, *rest, lifted=False: kept(free, *rest, lifted=lifted) if lifted else free[:0])
+    route = plan_route(SPEC, polytopes, START, BESIDE, jax.random.PRNGKey(0), LIFT)
+    assert route is not None
+    np.testing.assert_array_equal(route[0], START)
+    assert np.linalg.norm(tips(route[-1:], SPEC)[0] - BESIDE) <= LIFT.goal_tolerance
+    assert _exact(route).min() > 0.0
 
 
 def _roadmap(polytopes):
@@ -329,6 +377,12 @@ def test_route_settings_are_validated():
         RouteConfig(local_radius=0.0)
     with pytest.raises(ValueError, match="RouteConfig.check_step"):
         dataclasses.replace(ROUTE, check_step=-0.1)
+    with pytest.raises(ValueError, match="GoalLift.candidates"):
+        RouteConfig(lift={"candidates": 0})
+    with pytest.raises(ValueError, match="RouteConfig.lift"):
+        RouteConfig(lift=3)
+    # a recording's metadata holds the settings as nested dicts: they round-trip
+    assert RouteRecovery(route=dataclasses.asdict(LIFT)).route == LIFT
 
 
 def test_warm_up_compiles_the_routes_programs_so_a_plan_compiles_nothing(cloud):
