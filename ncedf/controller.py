@@ -226,8 +226,8 @@ class Controller:
         """Compile what :meth:`step` runs, before a closed loop's first timed step (results
         discarded): the step and, with a recovery stage, the route's programs (a plan to where the
         tip already is, and the check of a route's moves), which would otherwise compile mid-episode.
-        The route's second try (``ncedf.route.GoalLift``) compiles where an episode first needs it:
-        a stall the first try cannot plan round, seconds more where the plan takes seconds anyway."""
+        The route's second try (``ncedf.route.GoalLift``) compiles where an episode first needs it,
+        at a stall the first try cannot plan round."""
         inputs = self._inputs(state, arc, goal, obstacle_points)
         jax.block_until_ready(self._advance(state, *inputs))
         arc, goal, points, mask, model, guide = inputs

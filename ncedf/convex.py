@@ -409,6 +409,14 @@ def pack(found: list[tuple], velocity: np.ndarray | None = None, left_out: int =
                      np.int32(left_out))
 
 
+def _root(square: jnp.ndarray) -> jnp.ndarray:
+    """The square root of a sum of squares >= 0, with a zero derivative where it is 0 (a point inside
+    a box, outside none of its faces) instead of sqrt's NaN, so that a gradient through the distance
+    (``ncedf.obstacle_model.soft_clearance``) stays finite; the values are sqrt's."""
+    positive = square > 0
+    return jnp.where(positive, jnp.sqrt(jnp.where(positive, square, 1.0)), 0.0)
+
+
 def polytope_distance(x: jnp.ndarray, polytopes: Polytopes, t=0.0, dense: bool | None = None,
                       turning: bool = False) -> jnp.ndarray:
     """(...,) lower bound of the distance from points x (..., 3) to the nearest polytope,
@@ -464,7 +472,7 @@ def _looped_distance(x: jnp.ndarray, polytopes: Polytopes, t=0.0, turning: bool 
         rel = moved(c)
         centre, half = 0.5 * (p.upper[c] + p.lower[c]), 0.5 * (p.upper[c] - p.lower[c])
         q = [jnp.abs(rel[i] - centre[i]) - half[i] for i in range(3)]
-        outside = jnp.sqrt(sum(jnp.maximum(qi, 0.0) ** 2 for qi in q))
+        outside = _root(sum(jnp.maximum(qi, 0.0) ** 2 for qi in q))
         d = outside + jnp.minimum(jnp.maximum(jnp.maximum(q[0], q[1]), q[2]), 0.0)
         for k in range(planes):
             s = sum(rel[i] * p.normals[c, k, i] for i in range(3)) - p.offsets[c, k]
@@ -488,7 +496,7 @@ def _dense_distance(x: jnp.ndarray, polytopes: Polytopes, t=0.0, turning: bool =
     rel = [x[..., None, i] - (0.0 if turning else t * p.velocity[:, i]) for i in range(3)]  # 3 x (..., C)
     q = [jnp.abs(rel[i] - 0.5 * (p.upper[:, i] + p.lower[:, i])) - 0.5 * (p.upper[:, i] - p.lower[:, i])
          for i in range(3)]
-    d = (jnp.sqrt(sum(jnp.maximum(qi, 0.0) ** 2 for qi in q))
+    d = (_root(sum(jnp.maximum(qi, 0.0) ** 2 for qi in q))
          + jnp.minimum(jnp.maximum(jnp.maximum(q[0], q[1]), q[2]), 0.0))
     for k in range(p.valid.shape[1]):
         s = sum(rel[i] * p.normals[:, k, i] for i in range(3)) - p.offsets[:, k]

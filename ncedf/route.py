@@ -45,8 +45,7 @@ over arc lengths, checked against the convex model of the static obstacles
 * where the roadmap holds no route (no goal state, or none connected), a second
   try with goal states lifted clear (:class:`GoalLift`): among obstacles a body
   refined onto the goal mostly lies in one, and climbing its soft clearance
-  in the tip's null space finds the few clear ways to the goal (a field of
-  pillars: a few tens of 3000 candidates).
+  in the tip's null space finds the few clear ways to the goal.
 
 The route is the path's states, ``path_step`` apart in every arc length. The
 controller executes them (``ncedf.recovery``): each step's move along

@@ -14,9 +14,10 @@ import ncedf.route as route_module
 from ncedf.controller import Controller, ControllerConfig
 from ncedf.convex import fit_polytopes
 from ncedf.mppi import MPPIConfig
-from ncedf.obstacle_model import ConvexModel
+from ncedf.obstacle_model import ConvexModel, soft_clearance
 from ncedf.recovery import RouteRecovery, RouteState
-from ncedf.robot import RobotSpec, config_to_arc_lengths, end_effector_pose, sample_arc_lengths, validate_state
+from ncedf.robot import (RobotSpec, config_to_arc_lengths, end_effector_pose, forward_kinematics, sample_arc_lengths,
+                         validate_state)
 from ncedf.safety import SafetyFilter
 from ncedf.route import (GoalLift, RouteConfig, around, between, clearances, ends, goal_states, lazy_shortest_path,
                          plan_route, roadmap_edges, shortest_path, tips)
@@ -127,19 +128,34 @@ def _free(polytopes, config, key=5):
 
 def test_the_lift_climbs_bodies_out_of_the_bar_with_the_tip_kept_on_the_goal(polytopes):
     """Bodies refined onto the goal that cross the bar (by the exact distance) climb out of it in the tip's
-    null space: many end clear, the tips stay on the goal, and none that was clear ends in the bar."""
+    null space: many end clear, where as many refinement steps without the climb free few; the tips stay on
+    the goal, and none that was clear ends in the bar."""
     free = _free(polytopes, LIFT)
     near = np.argsort(np.linalg.norm(tips(free, SPEC) - BESIDE, axis=1))[:LIFT.lift.candidates]
     refined = route_module._refined(free[near], BESIDE, SPEC, LIFT, size=LIFT.lift.candidates)
     lifted = route_module._refined(refined, BESIDE, SPEC, LIFT, size=LIFT.lift.candidates, fitted=polytopes)
+    unlifted = np.asarray(route_module._refine(jnp.asarray(refined), jnp.asarray(BESIDE, jnp.float32), SPEC,
+                                               LIFT.lift.iterations, LIFT.goal_damping, LIFT.goal_move))
     before, after = _exact(refined), _exact(lifted)
     inside = before < 0.0
     assert inside.sum() >= 30
-    assert np.mean(after[inside] > 0.0) >= 0.2 and np.all(after[~inside] > 0.0)
+    assert np.mean(after[inside] > 0.0) >= 0.2 + np.mean(_exact(unlifted)[inside] > 0.0)
+    assert np.all(after[~inside] > 0.0)
     assert np.median(after) > np.median(before) + 0.2
     assert np.max(np.linalg.norm(tips(lifted, SPEC) - BESIDE, axis=1)) <= 0.05
     for arc in lifted:
         validate_state(arc, spec=SPEC)
+
+
+def test_the_soft_clearance_has_a_finite_gradient_with_a_ball_inside_the_bar(polytopes):
+    """A body through the bar (cover balls' centres inside its box): the gradient that lifts it is finite and
+    not zero (a square root's derivative at 0 would make it NaN)."""
+    drawn = np.asarray(sample_arc_lengths(jax.random.PRNGKey(3), SPEC, (400, SPEC.n_links)), np.float32)
+    depth = _exact(drawn)
+    arc = jnp.asarray(drawn[np.argmin(depth)])
+    grad = jax.grad(lambda a: soft_clearance(polytopes, a, forward_kinematics(a, SPEC), SPEC))(arc)
+    assert depth.min() < -0.1
+    assert np.all(np.isfinite(grad)) and np.any(np.asarray(grad) != 0.0)
 
 
 def test_lifted_goal_states_are_more_and_clear_of_the_bar(polytopes):
@@ -161,6 +177,17 @@ def test_where_the_first_try_holds_no_goal_state_the_lifted_ones_give_the_route(
     np.testing.assert_array_equal(route[0], START)
     assert np.linalg.norm(tips(route[-1:], SPEC)[0] - BESIDE) <= LIFT.goal_tolerance
     assert _exact(route).min() > 0.0
+
+
+def test_no_second_try_where_the_first_plans_a_route_or_for_a_pose(polytopes, monkeypatch):
+    lifted = []
+    kept = goal_states
+    monkeypatch.setattr(route_module, "goal_states",
+                        lambda *args, **kw: lifted.append(kw.get("lifted", False)) or kept(*args, **kw))
+    assert plan_route(SPEC, polytopes, START, GOAL, jax.random.PRNGKey(0), ROUTE) is not None
+    assert plan_route(SPEC, polytopes, START, np.asarray(BAR.centre), jax.random.PRNGKey(0), ROUTE,
+                      np.array([1.0, 0.0, 0.0]), aligned_only=True) is None
+    assert lifted and not any(lifted)
 
 
 def _roadmap(polytopes):
