@@ -33,7 +33,7 @@ SPEC = RobotSpec(2)
 START = np.full((2, 3), 2.0, np.float32)
 BAR = Box((1.3, 0.0, 3.0), (0.6, 3.0, 0.6))
 GOAL = np.array([2.2, 0.0, 2.2])
-ROUTE = RouteConfig(samples=600, local_samples=200, goal_candidates=100)
+ROUTE = RouteConfig(samples=600, local_samples=200, goal_candidates=100, lift=GoalLift(candidates=100, iterations=50))
 
 
 @pytest.fixture(scope="module")
