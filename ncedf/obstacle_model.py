@@ -31,7 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ncedf.convex import COVER_SPHERES, Polytopes, fit_polytopes, observed_motion, polytope_distance, robot_clearance
-from ncedf.grid_model import GridFit, fit_clearance, smooth_distance
+from ncedf.grid_model import FAR, GridFit, fit_clearance, smooth_distance
 from ncedf.shapes import SphereShape
 from ncedf.validate import check_fields
 
@@ -81,7 +81,7 @@ def soft_clearance(fitted: Polytopes | GridFit, arc, frames, spec):
         d = smooth_distance(fitted, geom.centres)
     else:
         d = polytope_distance(geom.centres, fitted)
-    d = jnp.minimum(d - geom.radius[..., None], 1e3)  # no polytope: +inf, which would stop the gradient
+    d = jnp.minimum(d - geom.radius[..., None], FAR)  # no polytope: +inf, whose gradient is NaN
     return -SOFTNESS * jax.nn.logsumexp(-d.ravel() / SOFTNESS)
 
 

@@ -150,16 +150,11 @@ class RouteConfig:
             object.__setattr__(self, "lift", GoalLift(**self.lift))
         if not isinstance(self.lift, GoalLift):
             raise ValueError(f"RouteConfig.lift must be a GoalLift, got {type(self.lift).__name__}")
-        for name in ("samples", "local_samples", "neighbours", "goal_candidates", "goal_iterations", "lazy_rounds",
-                     "retract_steps"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-                raise ValueError(f"RouteConfig.{name} must be an integer >= 1, got {value!r}")
-        for name in ("local_radius", "check_step", "node_clearance", "edge_clearance", "goal_damping", "goal_move",
-                     "goal_tolerance", "approach_weight", "retract_step", "approach_back", "path_step"):
-            value = getattr(self, name)
-            if not np.isfinite(value) or value <= 0:
-                raise ValueError(f"RouteConfig.{name} must be a number > 0, got {value!r}")
+        check_fields(self, integers=("samples", "local_samples", "neighbours", "goal_candidates", "goal_iterations",
+                                     "lazy_rounds", "retract_steps"),
+                     positive=("local_radius", "check_step", "node_clearance", "edge_clearance", "goal_damping",
+                               "goal_move", "goal_tolerance", "approach_weight", "retract_step", "approach_back",
+                               "path_step"))
 
 
 @functools.partial(jax.jit, static_argnums=1)
