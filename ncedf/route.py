@@ -363,7 +363,7 @@ def shortest_path(count: int, i: np.ndarray, j: np.ndarray, w: np.ndarray, ends:
 
 
 def lazy_shortest_path(nodes: np.ndarray, i: np.ndarray, j: np.ndarray, w: np.ndarray, goals: int, spec: RobotSpec,
-                       polytopes: Polytopes, config: RouteConfig) -> list[int] | None:
+                       polytopes: Polytopes, config: RouteConfig, checked: dict | None = None) -> list[int] | None:
     """The node indices of the shortest path from node 0 to any of the last ``goals`` nodes (N, M, 3) over the
     edges (i, j) (E,) of lengths w (E,) that are clear (``edge_clearance``, checked ``check_step`` apart), or
     None when no such path exists.
@@ -372,9 +372,13 @@ def lazy_shortest_path(nodes: np.ndarray, i: np.ndarray, j: np.ndarray, w: np.nd
     a path's edges are all clear. That path is the shortest over the clear edges, as if every edge had been
     checked first, and a route usually checks a few dozen edges instead of tens of thousands. After
     ``lazy_rounds`` rounds the edges still unchecked are checked at once, which bounds the rounds where no
-    path exists."""
-    clear = np.zeros(len(i), np.int8)  # 1 clear, -1 blocked, 0 not checked yet
-    index = {(a, b): e for e, (a, b) in enumerate(zip(i.tolist(), j.tolist()))}
+    path exists. ``checked``: the edges (a, b) (node indices, a < b) known already, 1 clear or -1 blocked,
+    updated with those checked here, so that a search over more nodes after these (the same first ones)
+    checks no edge twice."""
+    checked = {} if checked is None else checked
+    pairs = list(zip(i.tolist(), j.tolist()))
+    clear = np.array([checked.get(pair, 0) for pair in pairs], np.int8)  # 1 clear, -1 blocked, 0 not checked yet
+    index = {pair: e for e, pair in enumerate(pairs)}
     ends = np.arange(len(nodes) - goals, len(nodes))
     for round_ in itertools.count(1):
         kept = clear >= 0
@@ -387,17 +391,19 @@ def lazy_shortest_path(nodes: np.ndarray, i: np.ndarray, j: np.ndarray, w: np.nd
         unknown = edges[clear[edges] == 0] if round_ < config.lazy_rounds else np.flatnonzero(clear == 0)
         clear[unknown] = np.where(edge_clearances(nodes[i[unknown]], nodes[j[unknown]], spec, polytopes,
                                                   config.check_step) >= config.edge_clearance, 1, -1)
+        checked.update(zip(zip(i[unknown].tolist(), j[unknown].tolist()), clear[unknown].tolist()))
 
 
 def roadmap_path(others: np.ndarray, targets: np.ndarray, spec: RobotSpec, polytopes: Polytopes,
-                 config: RouteConfig) -> np.ndarray | None:
+                 config: RouteConfig, checked: dict | None = None) -> np.ndarray | None:
     """(P, M, 3) the roadmap's shortest clear path from ``others[0]`` through the nodes ``others`` (N, M, 3) to
-    one of ``targets`` (G, M, 3) (:func:`lazy_shortest_path`), or None where there is none."""
+    one of ``targets`` (G, M, 3) (:func:`lazy_shortest_path`, its ``checked`` edges), or None where there is
+    none."""
     if len(targets) == 0:
         return None
     nodes = np.concatenate([others, targets])
     i, j, w = roadmap_edges(nodes, config.neighbours)
-    path = lazy_shortest_path(nodes, i, j, w, len(targets), spec, polytopes, config)
+    path = lazy_shortest_path(nodes, i, j, w, len(targets), spec, polytopes, config, checked)
     return None if path is None else nodes[path]
 
 
@@ -424,10 +430,11 @@ def plan_route(spec: RobotSpec, polytopes: Polytopes, start, goal, key, config: 
                               config.local_radius), np.float32)
     local = local[clearances(local, spec, polytopes) >= config.edge_clearance]
     others = np.concatenate([start[None], free, local, chains])
-    path = roadmap_path(others, targets, spec, polytopes, config)
+    checked = {}  # the second try's nodes begin with the first's: their edges are checked once
+    path = roadmap_path(others, targets, spec, polytopes, config, checked)
     if path is None and not aligned_only:  # the second try: goal states lifted clear of the obstacles
         lifted = goal_states(free, goal, spec, polytopes, config, lifted=True)
-        path = roadmap_path(others, np.concatenate([targets, lifted]), spec, polytopes, config)
+        path = roadmap_path(others, np.concatenate([targets, lifted]), spec, polytopes, config, checked)
     if path is None:
         return None
     path = shortcut(path, spec, polytopes, config)

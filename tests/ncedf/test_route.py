@@ -237,6 +237,28 @@ def test_lazy_checks_find_the_path_that_checking_every_edge_finds(polytopes, mon
         assert sum(checked[:1]) < len(i) // 10  # the first search checks only its path's edges
 
 
+def test_a_search_over_more_nodes_checks_no_edge_known_from_the_first(polytopes, monkeypatch):
+    nodes, i, j, w, goals = _roadmap(polytopes)
+    assert goals >= 2
+    first = nodes[:-1]  # the second search's nodes begin with the first's
+    fi, fj, fw = roadmap_edges(first, 8)
+    checked = {}
+    lazy_shortest_path(first, fi, fj, fw, goals - 1, SPEC, polytopes, dataclasses.replace(ROUTE, lazy_rounds=1), checked)
+    known = dict(checked)
+    pairs = [(a, b) for a, b in zip(fi.tolist(), fj.tolist()) if (a, b) in known]
+    truth = route_module.edge_clearances(first[[a for a, _ in pairs]], first[[b for _, b in pairs]], SPEC, polytopes,
+                                         ROUTE.check_step) >= ROUTE.edge_clearance
+    assert len(pairs) == len(known) > 0 and [known[pair] for pair in pairs] == np.where(truth, 1, -1).tolist()
+    every = dataclasses.replace(ROUTE, lazy_rounds=1)  # where the first path is blocked, every edge not known
+    fresh = lazy_shortest_path(nodes, i, j, w, goals, SPEC, polytopes, every)
+    sizes = []
+    counted = route_module.edge_clearances
+    monkeypatch.setattr(route_module, "edge_clearances", lambda a, *rest: sizes.append(len(a)) or counted(a, *rest))
+    assert lazy_shortest_path(nodes, i, j, w, goals, SPEC, polytopes, every, checked) == fresh
+    assert sum(sizes) <= len(set(zip(i.tolist(), j.tolist())) - set(known))
+    assert all(checked[pair] == value for pair, value in known.items())
+
+
 @pytest.mark.parametrize("batch", [1, 37, 10**9])
 def test_edges_checked_in_batches_get_each_edges_least_clearance_over_all_its_states(polytopes, monkeypatch, batch):
     nodes, i, j, _, _ = _roadmap(polytopes)
