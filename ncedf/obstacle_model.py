@@ -31,7 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ncedf.convex import COVER_SPHERES, Polytopes, fit_polytopes, observed_motion, polytope_distance, robot_clearance
-from ncedf.grid_model import FAR, GridFit, fit_clearance, smooth_distance
+from ncedf.grid_model import FAR, GridFit, fit_clearance, nearer, smooth_distance
 from ncedf.shapes import SphereShape
 from ncedf.validate import check_fields
 
@@ -77,8 +77,8 @@ def soft_clearance(fitted: Polytopes | GridFit, arc, frames, spec):
     interpolated, ``ncedf.grid_model.smooth_distance``), so that its gradient moves every ball near an
     obstacle away from it. For climbing clear, not a bound (:func:`model_clearance` is)."""
     geom = SphereShape(spec, per_link=COVER_SPHERES).prepare(arc, frames)
-    if isinstance(fitted, GridFit):
-        d = smooth_distance(fitted, geom.centres)
+    if isinstance(fitted, GridFit):  # and its still moving group's polytopes, as model_clearance counts them
+        d = nearer(smooth_distance(fitted, geom.centres), geom.centres, fitted.moving)
     else:
         d = polytope_distance(geom.centres, fitted)
     d = jnp.minimum(d - geom.radius[..., None], FAR)  # no polytope: +inf, whose gradient is NaN

@@ -38,7 +38,7 @@ from ncedf.mppi import MPPIState
 from ncedf.obstacle_model import left_out, static_part
 from ncedf.robot import BASE, RobotSpec
 from ncedf.route import RouteConfig, plan_route
-from ncedf.validate import check_fields
+from ncedf.validate import check_fields, nested
 
 #: Route states kept (a longer route is thinned evenly).
 ROUTE_CAPACITY = 1024
@@ -58,10 +58,7 @@ class RouteRecovery:
 
     def __post_init__(self):
         check_fields(self, integers=("after", "tries"))
-        if isinstance(self.route, dict):
-            object.__setattr__(self, "route", RouteConfig(**self.route))
-        if not isinstance(self.route, RouteConfig):
-            raise ValueError(f"RouteRecovery.route must be a RouteConfig, got {type(self.route).__name__}")
+        nested(self, "route", RouteConfig)
 
 
 class RouteState(NamedTuple):

@@ -72,7 +72,7 @@ from scipy.spatial import cKDTree
 from ncedf.convex import Polytopes
 from ncedf.obstacle_model import model_clearance, soft_clearance
 from ncedf.robot import RobotSpec, end_effector_pose, forward_kinematics, project_state, sample_arc_lengths
-from ncedf.validate import check_fields
+from ncedf.validate import check_fields, nested
 
 #: States per jitted clearance call (padded), so every call reuses one program.
 PASS = 4096
@@ -146,10 +146,7 @@ class RouteConfig:
     lift: GoalLift = GoalLift()
 
     def __post_init__(self):
-        if isinstance(self.lift, dict):
-            object.__setattr__(self, "lift", GoalLift(**self.lift))
-        if not isinstance(self.lift, GoalLift):
-            raise ValueError(f"RouteConfig.lift must be a GoalLift, got {type(self.lift).__name__}")
+        nested(self, "lift", GoalLift)
         check_fields(self, integers=("samples", "local_samples", "neighbours", "goal_candidates", "goal_iterations",
                                      "lazy_rounds", "retract_steps"),
                      positive=("local_radius", "check_step", "node_clearance", "edge_clearance", "goal_damping",
@@ -195,12 +192,11 @@ def _refine(arcs: jnp.ndarray, goal: jnp.ndarray, spec: RobotSpec, iterations: i
     (Levenberg-Marquardt with a fixed damping): each iteration moves a state by
     ``-J^T (J J^T + damping^2 I)^-1 e``, with e the tip error (3,) and J (3, 3M) the tip's Jacobian
     on arc changes that keep each link's sum, scaled so that no arc length moves more than ``move``
-    m, then projected onto the valid states. About twenty iterations put the tip on the goal where
-    400 gradient steps left millimetres, in a tenth of the time. With an ``approach`` (3,) unit
-    vector, e also holds ``weight`` times the errors of the tip's approach axis (its z axis) and of
-    the last link's base from a link's length straight behind the tip along it. With a ``fitted``
-    model, each iteration also moves the state ``climb`` m (its largest arc change) up the gradient of
-    its soft clearance to the model, less the part the damped tip Jacobian would turn into tip motion."""
+    m, then projected onto the valid states. With an ``approach`` (3,) unit vector, e also holds
+    ``weight`` times the errors of the tip's approach axis (its z axis) and of the last link's base
+    from a link's length straight behind the tip along it. With a ``fitted`` model, each iteration
+    also moves the state ``climb`` m (its largest arc change) up the gradient of its soft clearance
+    to the model, less the part the damped tip Jacobian would turn into tip motion."""
     keep_sum = jnp.eye(3) - 1.0 / 3.0  # projector onto a link's zero-sum changes
 
     def error(arc):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -18,6 +19,19 @@ def _number(config, name: str) -> float:
 
 def _fail(config, name: str, rule: str):
     raise ValueError(f"{type(config).__name__}.{name} must be {rule}, got {getattr(config, name)!r}")
+
+
+def nested(config, name: str, kind: type) -> None:
+    """Make ``config``'s field ``name`` a ``kind``, built from its fields where it is a dict (a
+    recording's settings); raise ValueError naming the field where it is neither or a key is unknown."""
+    value = getattr(config, name)
+    if isinstance(value, dict):
+        unknown = sorted(set(value) - {field.name for field in dataclasses.fields(kind)})
+        if unknown:
+            _fail(config, name, f"a {kind.__name__} (no field {', '.join(unknown)})")
+        object.__setattr__(config, name, kind(**value))
+    elif not isinstance(value, kind):
+        raise ValueError(f"{type(config).__name__}.{name} must be a {kind.__name__}, got {type(value).__name__}")
 
 
 def check_fields(config, *, integers=(), counts=(), positive=(), non_negative=(), fractions=(), unit=None,

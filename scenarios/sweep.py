@@ -630,7 +630,8 @@ def parse_args(argv=None) -> argparse.Namespace:
 
     controllers = tuple(PRESETS)
 
-    p = OneLineParser(prog="python -m scenarios.sweep", description=__doc__.split("\n\n")[0],
+    # No abbreviations: a runner's --seed or --shape would be read as --seeds or --shapes.
+    p = OneLineParser(prog="python -m scenarios.sweep", description=__doc__.split("\n\n")[0], allow_abbrev=False,
                                 epilog="Exit status: 0 all episodes complete, 1 some failed, 2 bad arguments, "
                                        "130/143 interrupted (run the same command again to finish).")
     grid = p.add_argument_group("the grid (comma-separated values)")

@@ -5,10 +5,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from scipy.ndimage import map_coordinates
 from scipy.spatial import cKDTree
 
 from ncedf.controller import Controller, ControllerConfig
-from ncedf.grid_model import EXACT_BAND, LINK, REACH, GridModel, fit_clearance, grid_box, still_distance
+from ncedf.convex import polytope_distance
+from ncedf.grid_model import (EXACT_BAND, LINK, REACH, GridModel, fit_clearance, grid_box, smooth_distance,
+                               still_distance)
 from ncedf.guide import Guide, _gradient_at, guided_distance
 from ncedf.presets import Observation, ours, sampling_gap
 from ncedf.robot import BASE, RobotSpec, forward_kinematics
@@ -43,6 +46,26 @@ def test_the_grid_distance_is_a_lower_bound_of_the_distance_to_the_points():
     # point than the reach: there the bound is within it and two half cell diagonals.
     outside = np.max(np.abs(queries), axis=1) > 2.0 + REACH * 0.3
     assert np.all(truth[outside] - bound[outside] <= REACH * 0.3 + float(fitted.grid.spacing) * np.sqrt(3.0) + 1e-5)
+
+
+def test_the_smooth_distance_is_scipys_trilinear_interpolation_and_climbs_away_from_the_points():
+    points = RNG.uniform(-1.0, 1.0, (200, 3)).astype(np.float32)
+    fitted = fit(points, (0.0, 0.0, 3.0), gap=0.3)
+    grid = fitted.grid
+    values, origin, h = grid.array(), np.asarray(grid.origin), float(grid.spacing)
+    inside = origin + h * (np.asarray(values.shape) - 1)  # the last cell centres
+    queries = RNG.uniform(origin, inside, (2000, 3)).astype(np.float32)
+    truth = map_coordinates(values.astype(np.float64), ((queries - origin) / h).T, order=1)
+    if np.any(fitted.parts.present):  # where the parts' distance is less, it (ncedf.convex, tested apart)
+        truth = np.minimum(truth, np.asarray(polytope_distance(jnp.asarray(queries), fitted.parts)))
+    smooth = smooth_distance(fitted, jnp.asarray(queries))
+    np.testing.assert_allclose(np.asarray(smooth), truth, atol=1e-4)
+    # In free space its gradient is finite and points away from the nearest point (up the distance).
+    grad = np.asarray(jax.vmap(jax.grad(lambda x: smooth_distance(fitted, x)))(jnp.asarray(queries)))
+    nearest = points[cKDTree(points).query(queries)[1]]
+    free = np.asarray(smooth) > 2 * h
+    assert free.sum() > 100 and np.all(np.isfinite(grad))
+    assert np.mean(np.sum(grad[free] * (queries[free] - nearest[free]), axis=1) > 0) > 0.9
 
 
 def test_above_the_grid_the_bound_holds_and_is_at_least_the_height_above_it():

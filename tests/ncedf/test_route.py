@@ -154,7 +154,7 @@ def test_the_soft_clearance_has_a_finite_gradient_with_a_ball_inside_the_bar(pol
     depth = _exact(drawn)
     arc = jnp.asarray(drawn[np.argmin(depth)])
     grad = jax.grad(lambda a: soft_clearance(polytopes, a, forward_kinematics(a, SPEC), SPEC))(arc)
-    assert depth.min() < -0.1
+    assert depth.min() < -SPEC.radius  # the backbone itself inside the bar, so cover balls' centres are
     assert np.all(np.isfinite(grad)) and np.any(np.asarray(grad) != 0.0)
 
 
@@ -177,6 +177,33 @@ def test_where_the_first_try_holds_no_goal_state_the_lifted_ones_give_the_route(
     np.testing.assert_array_equal(route[0], START)
     assert np.linalg.norm(tips(route[-1:], SPEC)[0] - BESIDE) <= LIFT.goal_tolerance
     assert _exact(route).min() > 0.0
+
+
+def test_the_second_try_checks_no_edge_the_first_checked(polytopes, monkeypatch):
+    """plan_route's two searches share their edge checks: with the first search's route taken away (so a
+    second try runs), no pair of states is checked twice by the searches (the shortcut after them checks its
+    own), and the second roadmap begins with the first's nodes."""
+    calls, pairs = [], []
+    search, check = route_module.roadmap_path, route_module.edge_clearances
+
+    def first_fails(others, targets, *rest):
+        calls.append(np.concatenate([others, targets]))
+        path = search(others, targets, *rest)
+        calls.append(None)  # the search is over
+        return None if len(calls) == 2 else path
+
+    def recorded(a, b, *rest):
+        if calls and calls[-1] is not None:
+            pairs.extend(x.tobytes() + y.tobytes() for x, y in zip(a, b))
+        return check(a, b, *rest)
+
+    monkeypatch.setattr(route_module, "roadmap_path", first_fails)
+    monkeypatch.setattr(route_module, "edge_clearances", recorded)
+    route = plan_route(SPEC, polytopes, START, GOAL, jax.random.PRNGKey(0), ROUTE)
+    first, second = calls[::2]
+    assert len(calls) == 4 and route is not None
+    assert len(second) > len(first) and np.array_equal(second[:len(first)], first)
+    assert len(pairs) > 0 and len(set(pairs)) == len(pairs)
 
 
 def test_no_second_try_where_the_first_plans_a_route_or_for_a_pose(polytopes, monkeypatch):
@@ -430,6 +457,8 @@ def test_route_settings_are_validated():
         RouteConfig(lift={"candidates": 0})
     with pytest.raises(ValueError, match="RouteConfig.lift"):
         RouteConfig(lift=3)
+    with pytest.raises(ValueError, match="RouteRecovery.route must be a RouteConfig .no field wobble"):
+        RouteRecovery(route={"samples": 10, "wobble": 1})  # a one-line error, not a TypeError
     # a recording's metadata holds the settings as nested dicts: they round-trip
     assert RouteRecovery(route=dataclasses.asdict(LIFT)).route == LIFT
 

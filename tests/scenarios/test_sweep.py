@@ -182,6 +182,7 @@ def test_ray_runs_the_same_episodes(swept, tmp_path):
     (["--option", "nokey"], "'nokey'"),
     (["--executor", "ray", "--workers", "2"], "--workers"),
     (["--links", "4,5,4"], "L4_spheres.* more than once"),
+    (["--seed", "3"], "--seed 3"),  # a runner's option, not an abbreviation of --seeds
 ])
 def test_bad_values_are_one_line_errors_and_write_nothing(tmp_path, capsys, args, named):
     out = tmp_path / "runs"
