@@ -98,6 +98,9 @@ STOP_GRACE_S = 10.0
 POLL_S = 0.2
 #: The persistent JAX compilation cache of a local sweep, under its output folder.
 JAX_CACHE = ".jax-cache"
+#: A worker drops its compiled programs once its memory maps pass this share of the kernel's limit
+#: (:func:`release_programs`).
+MAP_SHARE = 0.5
 _SIGNALS = tuple(EXIT_STATUS)  # SIGINT, SIGTERM
 
 
@@ -246,8 +249,29 @@ def _init_local_worker(cores: int, cache_dir: str) -> None:
     start_jax(cores, cache_dir)
 
 
+def release_programs(share: float | None = None) -> bool:
+    """Clear JAX's compiled programs in this process (``jax.clear_caches``; the persistent cache loads
+    them again) where its memory maps exceed ``share`` (default ``MAP_SHARE``) of the kernel's limit,
+    ``vm.max_map_count``.
+    Every episode's programs keep their own maps, and a process at the limit dies compiling the next
+    program. Linux only (elsewhere nothing); returns whether it cleared."""
+    try:
+        limit = int(Path("/proc/sys/vm/max_map_count").read_text())
+        with open("/proc/self/maps", "rb") as maps:
+            count = sum(1 for _ in maps)
+    except (OSError, ValueError):
+        return False
+    if count <= (MAP_SHARE if share is None else share) * limit:
+        return False
+    import jax
+
+    jax.clear_caches()
+    return True
+
+
 def run_one(settings: EpisodeSettings, stem: str, formats: Sequence[str]) -> tuple[float, str | None]:
-    """Run one episode into `stem` (overwriting) -> (wall seconds, None or the error on one line)."""
+    """Run one episode into `stem` (overwriting) -> (wall seconds, None or the error on one line); then
+    :func:`release_programs`, as a worker runs many."""
     from scenarios.episode import run_episode
 
     start = time.perf_counter()
@@ -255,6 +279,8 @@ def run_one(settings: EpisodeSettings, stem: str, formats: Sequence[str]) -> tup
         run_episode(settings, out=stem, formats=tuple(formats), overwrite=True)
     except Exception as exc:  # reported by the sweep; the other episodes go on
         return time.perf_counter() - start, one_line(exc)
+    finally:
+        release_programs()
     return time.perf_counter() - start, None
 
 

@@ -22,9 +22,12 @@ import pytest
 import ray
 
 from recorder import Recorder, load_run, load_runs
+import scenarios.episode
+import scenarios.sweep
 from scenarios import manifest
 from scenarios.episode import EpisodeSettings, episode_name
-from scenarios.sweep import FINAL_OUTCOMES, JAX_CACHE, Recorded, main, read_complete, run_sweep, sweep_settings
+from scenarios.sweep import (FINAL_OUTCOMES, JAX_CACHE, Recorded, main, read_complete, release_programs, run_one,
+                             run_sweep, sweep_settings)
 
 TINY = ["--scenario", "spheres", "--shapes", "spheres", "--samples", "16", "--horizon", "3"]
 STEPS = 25
@@ -362,3 +365,19 @@ def test_recycled_workers_finish_the_sweep(swept, tmp_path):
     assert (meta["scenario"], meta["experiment"], meta["settings"]["episodes"]) == ("experiment", "sweep", 3)
     assert meta["command"] == "python -m scenarios.sweep " + " ".join(argv)
     assert meta["machine"]["cores"] == os.cpu_count() and meta["machine"]["versions"]["jax"]
+
+
+def test_a_worker_drops_its_compiled_programs_past_a_share_of_the_kernels_map_limit(monkeypatch, tmp_path):
+    import jax
+
+    if not Path("/proc/self/maps").exists():
+        pytest.skip("no /proc: nothing to count")
+    program = jax.jit(lambda x: x + 1.0)
+    program(1.0)
+    assert not release_programs(share=1e9) and program._cache_size() == 1  # far below: kept
+    assert release_programs(share=0.0) and program._cache_size() == 0  # past it: dropped
+    released = []
+    monkeypatch.setattr(scenarios.sweep, "release_programs", lambda: released.append(True))
+    monkeypatch.setattr(scenarios.episode, "run_episode", lambda *a, **k: 1 / 0)
+    seconds, error = run_one(tiny(0), str(tmp_path / "one"), ("mcap",))
+    assert "division by zero" in error and released == [True]  # after a failed episode too
