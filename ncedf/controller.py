@@ -121,6 +121,9 @@ class Controller:
         if shape.spec.n_links != spec.n_links:
             raise ValueError(f"the shape is for {shape.spec.n_links} links, the robot has {spec.n_links}")
         self.spec, self.shape, self.config = spec, shape, config
+        # The step's static settings: the model's, guide's and recovery's are host-side (fits, plans), and
+        # the model's are measured from each cloud, so without them every environment shares one program.
+        self.step_config = dataclasses.replace(config, model=None, guide=None, recovery=None)
         self.unit = unit(spec)
         self.core_spec, self.core_shape = to_reference(spec), rescaled(shape, to_reference(spec))
         self._guided = (None, None, None)  # the last grid, goal and guide field
@@ -211,8 +214,8 @@ class Controller:
 
     def _advance(self, state: ControllerState, arc, goal, points, mask, model, guide):
         """:meth:`step` on validated inputs (``_inputs``)."""
-        action, mppi, info = mppi_step(self.core_spec, self.config, self.core_shape, state.mppi, arc, goal, points,
-                                       mask, model, guide)
+        action, mppi, info = mppi_step(self.core_spec, self.step_config, self.core_shape, state.mppi, arc, goal,
+                                       points, mask, model, guide)
         route, c = state.route, self.config
         if c.recovery is not None:
             action, route, mppi = supervise(c.recovery, self.core_spec, self.check_moves(arc, points, mask, model),

@@ -192,6 +192,32 @@ def test_ours_steps_with_the_grid_model_and_the_guide_on_the_programs_its_warm_u
     assert np.isfinite(float(info.predicted_min_distance))
 
 
+def test_clouds_of_other_gaps_share_the_compiled_step_and_it_is_the_step_of_the_whole_settings():
+    """The grid model's gap is measured from each cloud (a preset's), and only the host-side fit reads
+    it: a controller for another sampling of the wall steps on the program already compiled, and its
+    action is that of the step of the whole settings, bit for bit."""
+    from ncedf import mppi as mppi_module
+
+    spec = RobotSpec(3)
+    arc, goal = np.asarray(spec.straight_state(), np.float32), np.array([4.0, 0.0, 1.0], np.float32)
+    added, gaps = [], []
+    for seed in (0, 1):  # two samplings of one wall: other gaps, one capacity
+        points = wall(4.0, 1.6, seed=seed)
+        config = ours(spec, Observation(len(points), convex=False, gap=sampling_gap(points)))
+        config = ControllerConfig(**{**vars(config), "mppi": config.mppi.__class__(
+            **{**vars(config.mppi), "samples": 32, "horizon": 4})})
+        gaps.append(config.model.gap)
+        controller = Controller(spec, make_shape("spheres", spec), config)
+        state = controller.init(jax.random.PRNGKey(0))
+        before = mppi_module.mppi_step._cache_size()
+        action, _, _ = controller.step(state, arc, goal, points)
+        added.append(mppi_module.mppi_step._cache_size() - before)
+        whole = mppi_module.mppi_step(controller.core_spec, config, controller.core_shape, state.mppi,
+                                      *controller._inputs(state, arc, goal, points))[0]
+        np.testing.assert_array_equal(np.asarray(action), np.asarray(whole) * controller.unit)
+    assert gaps[0] != gaps[1] and added[1] == 0
+
+
 def test_a_guide_needs_the_grid_model():
     with pytest.raises(ValueError, match="GridModel"):
         ControllerConfig(guide=Guide(0.2))
