@@ -19,7 +19,6 @@ from ncedf.broad_phase import BroadPhase
 from ncedf.mppi import MPPIConfig
 from ncedf.obstacle_model import ConvexModel
 from ncedf.recovery import RouteRecovery
-from ncedf.route import RouteConfig
 from ncedf.safety import SafetyFilter
 from ncedf.sampling import Sampling
 from ncedf.temperature import EffectiveSampleSize, Fixed, StallEscape
@@ -65,7 +64,7 @@ def legacy_config(flat: dict):
     temperature = Fixed(f["temperature"]) if f["target_ess"] is None else EffectiveSampleSize(f["target_ess"], escape)
     broad = (BroadPhase(f["k1"], f["k2"], f["capsule_segments"], f["selection"], f["groups"], f["group_size"])
              if f["broad_phase"] else None)
-    recovery = RouteRecovery(f["route_after"], route=RouteConfig(**route)) if f["route_after"] else None
+    recovery = RouteRecovery(f["route_after"], route=route) if f["route_after"] else None
     return ControllerConfig(
         mppi=MPPIConfig(**{new: f[old] for new, old in CORE.items() if old in f}),
         sampling=Sampling(f["sampling"], f["noise_smoothing"], f["noise_clip"], f["update_unclipped"]),

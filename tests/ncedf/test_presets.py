@@ -65,6 +65,8 @@ def test_flat_settings_of_old_recordings_are_the_presets_of_today(name):
     assert config_from_dict(flat) == then
     with pytest.raises(ValueError, match="sweep_first"):
         config_from_dict({**flat, "sweep_first": True})
+    with pytest.raises(ValueError, match="RouteRecovery.route .*no field wobble"):  # one line, not a TypeError
+        config_from_dict({**flat, "route_after": 30, "route": {"wobble": 1}})
 
 
 @pytest.mark.parametrize("bad, message", [
