@@ -252,9 +252,8 @@ def _init_local_worker(cores: int, cache_dir: str) -> None:
 def release_programs(share: float | None = None) -> bool:
     """Clear JAX's compiled programs in this process (``jax.clear_caches``; the persistent cache loads
     them again) where its memory maps exceed ``share`` (default ``MAP_SHARE``) of the kernel's limit,
-    ``vm.max_map_count``.
-    Each environment's programs keep their own maps, and a process at the limit dies compiling the next
-    program. Linux only (elsewhere nothing); returns whether it cleared."""
+    ``vm.max_map_count``: compiled programs keep their own maps, and a process at the limit dies
+    compiling the next one. Linux only (elsewhere nothing); returns whether it cleared."""
     try:
         limit = int(Path("/proc/sys/vm/max_map_count").read_text())
         with open("/proc/self/maps", "rb") as maps:
