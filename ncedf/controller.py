@@ -43,7 +43,7 @@ from ncedf.grid_model import GridModel
 from ncedf.guide import Guide
 from ncedf.mppi import MPPIConfig, MPPIInfo, MPPIState, init_state, mppi_step
 from ncedf.obstacle_model import ConvexModel
-from ncedf.recovery import RouteRecovery, RouteState, no_route, supervise
+from ncedf.recovery import RouteRecovery, RouteState, no_route, plan_due, supervise
 from ncedf.robot import RobotSpec, validate_state
 from ncedf.route import plan_route, tips
 from ncedf.safety import SafetyFilter, step_clearance
@@ -127,6 +127,7 @@ class Controller:
         self.unit = unit(spec)
         self.core_spec, self.core_shape = to_reference(spec), rescaled(shape, to_reference(spec))
         self._guided = (None, None, None)  # the last grid, goal and guide field
+        self._route_ready = False  # the route's programs compiled (prepare)
 
     def init(self, key) -> ControllerState:
         """Zero plan (paper: the initial reference is zero), the key, no observation yet, no route."""
@@ -226,21 +227,27 @@ class Controller:
         return action * self.unit, ControllerState(mppi, points, mask, route), info_to_metres(info, self.unit)
 
     def warm_up(self, state: ControllerState, arc, goal, obstacle_points=None) -> None:
-        """Compile what :meth:`step` runs, before a closed loop's first timed step (results
-        discarded): the step and, with a recovery stage, the route's programs (a plan to where the
-        tip already is, and the check of a route's moves), which would otherwise compile mid-episode.
-        The route's second try (``ncedf.route.GoalLift``) compiles where an episode first needs it,
-        at a stall the first try cannot plan round."""
-        inputs = self._inputs(state, arc, goal, obstacle_points)
-        jax.block_until_ready(self._advance(state, *inputs))
-        arc, goal, points, mask, model, guide = inputs
-        if self.config.recovery is None:
+        """Compile the step before a closed loop's first timed step (results discarded). The
+        route's programs compile where a plan first falls due (:meth:`prepare`): most episodes
+        never stall, and a first run compiles them only where one does."""
+        jax.block_until_ready(self._advance(state, *self._inputs(state, arc, goal, obstacle_points)))
+
+    def prepare(self, state: ControllerState, arc, goal, obstacle_points=None) -> None:
+        """Compile the route's programs where the next :meth:`step` may plan this controller's first
+        route, so that a timed step holds the plan and not its compilation: a plan to where the
+        tip already is, and the check of a route's moves (the route's second try,
+        ``ncedf.route.GoalLift``, compiles where an episode first needs it). Nothing otherwise;
+        a loop that calls it before each timed step pays for the route only where it plans one."""
+        recovery = self.config.recovery
+        if recovery is None or self._route_ready or not plan_due(recovery, state.route, int(state.mppi.stalled) + 1):
             return
+        arc, goal, points, mask, model, guide = self._inputs(state, arc, goal, obstacle_points)
         here = np.asarray(arc)
         aligned = guide is not None or goal.shape == (4, 4)
         plan_route(self.core_spec, model, here, tips(here[None], self.core_spec)[0], state.mppi.key,
-                   self.config.recovery.route, np.array([1.0, 0.0, 0.0]) if aligned else None)
+                   recovery.route, np.array([1.0, 0.0, 0.0]) if aligned else None)
         jax.block_until_ready(self.check_moves(arc, points, mask, model)(jnp.zeros((2,) + arc.shape, jnp.float32)))
+        self._route_ready = True
 
 
 def to_units(goal: jnp.ndarray, factor: float) -> jnp.ndarray:

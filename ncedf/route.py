@@ -53,8 +53,8 @@ them passes its safety check first, which sees the moving obstacles.
 
 Host-side (numpy and scipy around jitted JAX), as the polytope fit is: it runs
 once per stall, not per step. The states are scored ``PASS`` at a time (one
-compiled program per robot and settings, which ``Controller.warm_up`` compiles before
-an episode). Its time per plan: ``bench/route_plan.py``.
+compiled program per robot and settings, which ``Controller.prepare`` compiles before the
+timed step of a controller's first plan). Its time per plan: ``bench/route_plan.py``.
 """
 
 from __future__ import annotations

@@ -463,18 +463,24 @@ def test_route_settings_are_validated():
     assert RouteRecovery(route=dataclasses.asdict(LIFT)).route == LIFT
 
 
-def test_warm_up_compiles_the_routes_programs_so_a_plan_compiles_nothing(cloud):
+def test_prepare_compiles_the_routes_programs_where_a_plan_is_due_so_the_plan_compiles_nothing(cloud):
+    """The warm-up compiles the step alone; ``prepare`` compiles the route's programs before the step
+    whose stall count makes a plan due, and nothing before the others."""
     mppi = _controller()
     programs = [route_module._clearance, route_module._refine, route_module._ends, route_module.around,
                 controller_module._check_moves]
-    jax.clear_caches()  # so the warm-up compiles each of them, whatever the tests before compiled
+    jax.clear_caches()  # so that each of them compiles here, whatever the tests before compiled
     before = [p._cache_size() for p in programs]
     state = mppi.init(jax.random.PRNGKey(0))
     mppi.warm_up(state, START, GOAL, cloud)
+    mppi.prepare(_stalled(state, 3), START, GOAL, cloud)  # a plan is due at 6 steps without progress (after=5)
+    assert [p._cache_size() for p in programs] == before
+    due = _stalled(state, 5)
+    mppi.prepare(due, START, GOAL, cloud)
     warm = [p._cache_size() for p in programs]
     assert all(w > b for w, b in zip(warm, before))
-    _, after, _ = mppi.step(_stalled(state, 50), START, GOAL, cloud)
-    assert after.route.routes == 1 and len(after.route.states) > 0  # a plan, its states in other counts than the warm-up's
+    _, after, _ = mppi.step(due, START, GOAL, cloud)
+    assert after.route.routes == 1 and len(after.route.states) > 0  # a plan, its states in other counts than prepare's
     assert [p._cache_size() for p in programs] == warm
 
 
