@@ -70,6 +70,8 @@ class MPPIConfig:
       max_points: obstacle-cloud capacity (clouds are padded to it with a mask).
       progress: the fall of the best goal distance that counts as progress, m (or Frobenius
         units for a pose goal).
+      first_iterations: updates of the plan at a step with no goal distance tracked yet (the
+        first): the zero plan's single update averages noise into a slow start.
     """
 
     samples: int = 800
@@ -89,9 +91,10 @@ class MPPIConfig:
     dt: float = 0.05
     max_points: int = 512
     progress: float = 0.05
+    first_iterations: int = 1
 
     def __post_init__(self):
-        check_fields(self, integers=("samples", "horizon", "max_points"), fractions=("alpha_u",),
+        check_fields(self, integers=("samples", "horizon", "max_points", "first_iterations"), fractions=("alpha_u",),
                      positive=("covariance", "epsilon", "control_bound", "dt", "progress"),
                      non_negative=("w_goal", "w_coll", "w_state", "w_goal_terminal", "w_coll_terminal",
                                    "w_perturbation", "safety_margin"),
@@ -222,6 +225,64 @@ def execute(config, shape, arc, updated, raw, u, total, dist, points, mask, mode
                            jnp.argmin(total), jnp.argmax(dist[:, 0]))
 
 
+class Iteration(NamedTuple):
+    """One update of the plan (:func:`iterate`): the bounded samples (N, H, M, 3), the rollout
+    states' predicted obstacle distances (N, H), the weighted cost terms (goal, collision, state,
+    perturbation) and their total (N,) each, the weights (N,) and temperature, and the plan after
+    the update (``raw``, kept as the warm start, and its bounded form ``updated``, (H, M, 3) each)."""
+
+    bounded: jnp.ndarray
+    dist: jnp.ndarray
+    terms: tuple
+    total: jnp.ndarray
+    weights: jnp.ndarray
+    temperature: jnp.ndarray
+    raw: jnp.ndarray
+    updated: jnp.ndarray
+
+
+def iterate(spec: RobotSpec, config, shape, nominal, key, stalled, arc, goal, points, mask, model, guide) -> Iteration:
+    """Sample around the plan ``nominal`` (H, M, 3), roll out, cost, weight and update it (module
+    docstring); ``stalled``: the steps without progress, for the temperature stage."""
+    c = config.mppi
+    eps = sample_noise(config.sampling, c.covariance, c.samples, key, nominal.shape, nominal.dtype)
+    perturbed = nominal[None] + eps  # the unbounded samples (N, H, M, 3)
+    u = bounded_controls(config.sampling, c.control_bound, perturbed)
+    arcs = arc[None, None] + c.dt * jnp.cumsum(u, axis=1)  # x^1 .. x^H
+    # Materialised once, so every consumer reads the same frames: XLA otherwise recomputes parts of the
+    # chain inside some consumers, with a rounding that can depend on the number of CPU threads.
+    frames = jax.lax.optimization_barrier(forward_kinematics(arcs, spec))  # (N, H, M + 1, 4, 4)
+    goal_d = goal_distance(frames[..., -1, :, :], goal, guide)  # (N, H)
+    dist = state_distances(config, shape, arc, arcs, frames, u[:, 0], points, mask, model)
+    terms = cost_terms(c, spec, arcs, goal_d, dist, nominal, eps)
+    total = terms[0] + terms[1] + terms[2] + terms[3]
+    lo, spread = jnp.min(total), jnp.max(total) - jnp.min(total)
+    norm = jnp.where(spread > 0, (total - lo) / jnp.where(spread > 0, spread, 1.0), 0.0)
+    temperature = config.temperature.choose(norm, stalled)
+    w = jnp.exp(-norm / temperature)
+    w = w / jnp.sum(w)
+    raw, updated = update_plan(config.sampling, c.control_bound, c.alpha_u, nominal, perturbed, u, w)
+    return Iteration(u, dist, terms, total, w, temperature, raw, updated)
+
+
+def first_plan(spec: RobotSpec, config, shape, state: MPPIState, arc, goal, points, mask, model, guide):
+    """The plan and key for a step: at a step with no goal distance tracked yet (the first, or
+    MPPI's first after a route), the plan updated ``first_iterations`` - 1 times from ``arc``
+    before the step's own update; the state's otherwise."""
+    def once(_, carry):
+        nominal, key = carry
+        key, k_noise = jax.random.split(key)
+        return iterate(spec, config, shape, nominal, k_noise, state.stalled, arc, goal, points, mask, model,
+                       guide).raw, key
+
+    def refined():
+        return jax.lax.fori_loop(0, config.mppi.first_iterations - 1, once, (state.nominal, state.key))
+
+    if config.mppi.first_iterations == 1:
+        return state.nominal, state.key
+    return jax.lax.cond(jnp.isinf(state.best_goal), refined, lambda: (state.nominal, state.key))
+
+
 @functools.partial(jax.jit, static_argnums=(0, 1))
 def mppi_step(spec: RobotSpec, config, shape, state: MPPIState, arc, goal, points, mask, model=None, guide=None):
     """One MPPI iteration: a pure function, jitted with ``spec`` and the composed ``config``
@@ -237,30 +298,14 @@ def mppi_step(spec: RobotSpec, config, shape, state: MPPIState, arc, goal, point
       action (M, 3) m/s, the next :class:`MPPIState`, and an :class:`MPPIInfo`.
     """
     c = config.mppi
-    key, k_noise = jax.random.split(state.key)
-    nominal = state.nominal
-    eps = sample_noise(config.sampling, c.covariance, c.samples, k_noise, nominal.shape, nominal.dtype)
-    perturbed = nominal[None] + eps  # the unbounded samples (N, H, M, 3)
-    u = bounded_controls(config.sampling, c.control_bound, perturbed)
-    arcs = arc[None, None] + c.dt * jnp.cumsum(u, axis=1)  # x^1 .. x^H
-    # Materialised once, so every consumer reads the same frames: XLA otherwise recomputes parts of the
-    # chain inside some consumers, with a rounding that can depend on the number of CPU threads.
-    frames = jax.lax.optimization_barrier(forward_kinematics(arcs, spec))  # (N, H, M + 1, 4, 4)
-    goal_d = goal_distance(frames[..., -1, :, :], goal, guide)  # (N, H)
-    dist = state_distances(config, shape, arc, arcs, frames, u[:, 0], points, mask, model)
-    c_goal, c_coll, c_state, c_pert = cost_terms(c, spec, arcs, goal_d, dist, nominal, eps)
-    total = c_goal + c_coll + c_state + c_pert
-
-    lo, hi = jnp.min(total), jnp.max(total)
-    spread = hi - lo
-    norm = jnp.where(spread > 0, (total - lo) / jnp.where(spread > 0, spread, 1.0), 0.0)
+    nominal, key = first_plan(spec, config, shape, state, arc, goal, points, mask, model, guide)
+    key, k_noise = jax.random.split(key)
     best_goal, stalled = track_progress(c, state, goal_distance(forward_kinematics(arc, spec)[-1], goal, guide))
-    temperature = config.temperature.choose(norm, stalled)
-    w = jnp.exp(-norm / temperature)
-    w = w / jnp.sum(w)
-    raw, updated = update_plan(config.sampling, c.control_bound, c.alpha_u, nominal, perturbed, u, w)
-    action, clearance, choice, raw = execute(config, shape, arc, updated, raw, u, total, dist, points, mask,
-                                             model)
+    it = iterate(spec, config, shape, nominal, k_noise, stalled, arc, goal, points, mask, model, guide)
+    raw, updated, dist, total = it.raw, it.updated, it.dist, it.total
+    c_goal, c_coll, c_state, c_pert = it.terms
+    action, clearance, choice, raw = execute(config, shape, arc, updated, raw, it.bounded, total, dist, points,
+                                             mask, model)
     next_nominal = jnp.concatenate([raw[1:], raw[-1:]], axis=0)
 
     best = jnp.argmin(total)
@@ -268,7 +313,7 @@ def mppi_step(spec: RobotSpec, config, shape, state: MPPIState, arc, goal, point
     info = MPPIInfo(
         plan=forward_kinematics(plan_arcs, spec)[:, -1, :3, 3], predicted_min_distance=jnp.min(dist[best]),
         current_min_distance=shape.min_distance(points, arc, mask), cost_goal=c_goal[best],
-        cost_coll=c_coll[best], cost_state=c_state[best], cost_perturbation=c_pert[best], cost_min=lo,
-        cost_max=hi, ess=1.0 / jnp.sum(w * w), selected=best, rollout_min_distance=dist, temperature=temperature,
-        action_clearance=clearance, action_choice=choice)
+        cost_coll=c_coll[best], cost_state=c_state[best], cost_perturbation=c_pert[best], cost_min=jnp.min(total),
+        cost_max=jnp.max(total), ess=1.0 / jnp.sum(it.weights * it.weights), selected=best,
+        rollout_min_distance=dist, temperature=it.temperature, action_clearance=clearance, action_choice=choice)
     return action, MPPIState(next_nominal, key, best_goal, stalled), info

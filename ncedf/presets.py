@@ -14,8 +14,12 @@
   - obstacles observed completely, as balls (centre and radius): nothing is
     hidden, so speed only shortens the time they have to reach the robot; it
     races: the unclipped plan update, the closest-approach goal cost, low-pass
-    noise, each rollout's first step scored over its sweep, and the warm start
-    from the executed controls;
+    noise, a first plan updated three times before the first move (from the
+    zero plan one update starts at half the rate bound), each rollout's first
+    step scored over its sweep, the warm start from the executed controls,
+    and a safety margin of 0.01 m beyond the balls' radius (the balls are
+    observed exactly: a wider margin turns the racing robot aside near the
+    goal, where a sphere closing in then meets it);
   - obstacles observed as points on surfaces whose still clusters are all
     convex: the points leave holes between them, so it closes each cluster (the
     convex model), and with the surfaces closed it races too (the unclipped
@@ -83,6 +87,10 @@ CORRIDOR = 2.0
 GAP_NEIGHBOURS = 8
 #: ``ours`` with balls: the low-pass noise's beta (a rollout keeps its direction over the horizon).
 BALLS_SMOOTHING = 0.9
+#: ``ours`` with balls: the updates of the first plan (``MPPIConfig.first_iterations``).
+BALLS_FIRST_ITERATIONS = 3
+#: ``ours`` with balls: the safety margin beyond the balls' radius, m.
+BALLS_MARGIN = 0.01
 
 
 @dataclasses.dataclass(frozen=True)
@@ -174,7 +182,8 @@ def ours(spec: RobotSpec, observation: Observation) -> ControllerConfig:
                                temperature=EffectiveSampleSize(OURS_ESS), safety=SafetyFilter())
     if observation.ball_radius > 0:
         return dataclasses.replace(
-            base, mppi=dataclasses.replace(base.mppi, goal_reach=True),
+            base, mppi=dataclasses.replace(base.mppi, goal_reach=True, first_iterations=BALLS_FIRST_ITERATIONS,
+                                           safety_margin=BALLS_MARGIN + observation.ball_radius),
             sampling=dataclasses.replace(base.sampling, smoothing=BALLS_SMOOTHING, unclipped=True),
             safety=SafetyFilter(sweep_first=True, follow_executed=True))
     if not observation.convex:

@@ -263,6 +263,28 @@ def test_reaches_a_reachable_goal_without_obstacles():
     assert dist < 0.2
 
 
+def test_the_first_plans_updates_start_the_robot_near_the_rate_bound_and_leave_later_steps_alone():
+    """Towards a goal out of reach in free space the fastest motion runs at the rate bound; from the
+    zero plan one update averages the samples' noise into half of it, and the first plan updated
+    before the first move (``first_iterations``) comes near it. A step from a state whose goal
+    distance is tracked is the same step whatever the setting."""
+    from ncedf.presets import Observation, ours
+
+    balls = ours(SPEC, Observation(1, ball_radius=0.1))  # the preset that races
+    goal = np.array([3.0, 0.0, 3.0], np.float32)
+    speeds, steps, later = {}, {}, None
+    for k in (1, 5):
+        cfg = dataclasses.replace(balls, mppi=dataclasses.replace(balls.mppi, samples=64, horizon=10, max_points=64,
+                                                                  first_iterations=k))
+        m = Controller(SPEC, make_shape("spheres:2", SPEC), cfg)
+        first = [m.step(m.init(jax.random.PRNGKey(seed)), SPEC.straight_state(), goal, None) for seed in range(8)]
+        speeds[k] = np.mean([np.abs(np.asarray(a)).mean() for a, _, _ in first]) / cfg.mppi.control_bound
+        later = first[0][1] if later is None else later  # the state after one step, the same for both
+        steps[k] = np.asarray(m.step(later, SPEC.straight_state(), goal, None)[0])
+    assert speeds[5] >= 0.8 and speeds[5] - speeds[1] >= 0.25, speeds
+    np.testing.assert_allclose(steps[5], steps[1], atol=1e-6)
+
+
 def test_avoids_obstacles_between_robot_and_goal():
     from ncedf.model import load_model
 

@@ -14,7 +14,7 @@ import trimesh
 
 from ncedf.geometry import robot_mesh_arrays
 from ncedf.grid_model import GridModel, goal_open
-from ncedf.presets import POINT_BUCKET, Observation, observe, point_capacity, preset
+from ncedf.presets import BALLS_MARGIN, POINT_BUCKET, Observation, observe, point_capacity, preset
 from ncedf.robot import RobotSpec, end_effector_pose
 from recorder import inspect as recorder_inspect
 from recorder import load_run
@@ -236,7 +236,7 @@ def test_spheres_scene_observes_centres_with_a_wider_margin():
     scene = Episode(EpisodeSettings("spheres", 4, 0, env_seed=5, shape="exact")).scene
     assert scene.observer.n_points == 8 and scene.observer.observe(0.0).shape == (8, 3)
     assert (scene.config.mppi.samples, scene.config.mppi.horizon) == (1000, 12)
-    assert scene.config.mppi.safety_margin == pytest.approx(0.05 + 0.7)
+    assert scene.config.mppi.safety_margin == pytest.approx(BALLS_MARGIN + 0.7)  # the radius on top of ours's margin
     assert (scene.tolerance, scene.max_steps) == (0.2, 200)
 
 
