@@ -24,7 +24,9 @@ and cannot change the normalised weights, so it is left out. The weights are
 temperature stage (``ncedf.temperature``); the update is
 ``U <- (1 - alpha_u) U + alpha_u sum_j w_j u^j / sum_j w_j``; the first control
 is executed (scaled per link to keep the arc lengths within their limits) and
-the plan shifts by one step, its last control repeated.
+the plan shifts by one step, its last control repeated. At a step with no goal
+distance tracked yet (the first) the plan may be updated ``first_iterations``
+times before its first control is executed (:func:`first_plan`).
 
 The core also tracks progress: the smallest goal distance of the current state
 so far and the steps since it last fell by ``progress``. The temperature

@@ -12,7 +12,7 @@ from ncedf.controller import config_from_dict, config_to_dict
 from ncedf.grid_model import GridModel
 from ncedf.guide import Guide
 from ncedf.obstacle_model import ConvexModel
-from ncedf.presets import PRESETS, Observation, observe, ours, preset
+from ncedf.presets import BALLS_MARGIN, PRESETS, Observation, observe, ours, preset
 from ncedf.robot import RobotSpec
 from solids import ported_wall, solid_wall
 
@@ -31,7 +31,7 @@ def test_the_core_holds_the_papers_names_at_the_top_of_the_metadata():
     """Analysis reads ``mppi.samples`` / ``mppi.horizon`` / ``mppi.safety_margin`` from recordings of every age."""
     meta = config_to_dict(preset("ours", RobotSpec(4), Observation(8, ball_radius=0.7)))
     assert (meta["samples"], meta["horizon"]) == (1000, 12)
-    assert meta["safety_margin"] == pytest.approx(0.05 + 0.7)
+    assert meta["safety_margin"] == pytest.approx(BALLS_MARGIN + 0.7)  # the balls' radius on top of the margin
 
 
 def test_only_the_capacity_follows_the_size_of_the_cloud():
