@@ -268,9 +268,9 @@ def iterate(spec: RobotSpec, config, shape, nominal, key, stalled, arc, goal, po
 
 
 def first_plan(spec: RobotSpec, config, shape, state: MPPIState, arc, goal, points, mask, model, guide):
-    """The plan and key for a step: at a step with no goal distance tracked yet (the first, or
-    MPPI's first after a route), the plan updated ``first_iterations`` - 1 times from ``arc``
-    before the step's own update; the state's otherwise."""
+    """The plan and key for a step: at a step with no goal distance tracked yet (the first, and
+    the first after a route is planned or ends), the plan updated ``first_iterations`` - 1 times
+    from ``arc`` before the step's own update; the state's otherwise."""
     def once(_, carry):
         nominal, key = carry
         key, k_noise = jax.random.split(key)
@@ -287,8 +287,9 @@ def first_plan(spec: RobotSpec, config, shape, state: MPPIState, arc, goal, poin
 
 @functools.partial(jax.jit, static_argnums=(0, 1))
 def mppi_step(spec: RobotSpec, config, shape, state: MPPIState, arc, goal, points, mask, model=None, guide=None):
-    """One MPPI iteration: a pure function, jitted with ``spec`` and the composed ``config``
-    (``ncedf.controller.ControllerConfig``) static; the representation is a pytree argument.
+    """One MPPI step (``first_iterations`` updates where no goal distance is tracked yet): a pure
+    function, jitted with ``spec`` and the composed ``config`` (``ncedf.controller.ControllerConfig``)
+    static; the representation is a pytree argument.
 
     Args:
       shape: a :class:`ncedf.shapes.Shape`.  state: :class:`MPPIState`.

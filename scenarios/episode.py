@@ -4,7 +4,8 @@ Time is ``t_k = k dt`` (dt = the controller's step, 0.05 s). MPPI step ``k``:
 
 1. the controller observes the obstacle cloud at ``t_k`` and plans from the
    state ``q_k`` (wall time ``solver_ms``, blocked until the result is ready;
-   the program is compiled before the first step, so no step pays for it);
+   the step's program is compiled before the first step, and the route's before
+   the step of the first plan, so no step pays for compiling);
 2. the executed state ``q_{k+1} = project_state(q_k + u_k dt)`` (the
    projection repairs the float32 drift of the sum constraint);
 3. the judge (``scenarios.judge.judge_step``) checks the exact robot-to-obstacle

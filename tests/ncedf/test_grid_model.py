@@ -169,7 +169,6 @@ def test_the_clearance_of_a_robot_is_at_most_its_exact_clearance_to_the_points()
 def test_ours_steps_with_the_grid_model_and_the_guide_on_the_programs_its_warm_up_compiled():
     """The first step sees no point still (a far grid over the cloud's box), the second closes the
     wall: both grids have one shape, so the warm-up's programs serve both steps."""
-    from ncedf import controller as controller_module
     from ncedf import mppi as mppi_module
 
     spec = RobotSpec(3)
@@ -180,7 +179,7 @@ def test_ours_steps_with_the_grid_model_and_the_guide_on_the_programs_its_warm_u
     controller = Controller(spec, make_shape("spheres", spec), config)
     state = controller.init(jax.random.PRNGKey(0))
     arc, goal = np.asarray(spec.straight_state(), np.float32), np.array([4.0, 0.0, 1.0], np.float32)
-    programs = [mppi_module.mppi_step, controller_module._check_moves]
+    programs = [mppi_module.mppi_step]
     controller.warm_up(state, arc, goal, points)
     warm = [p._cache_size() for p in programs]
     for _ in range(2):  # the second step sees the points still: the grid closes them

@@ -37,6 +37,7 @@ def exact_mppi():
      (MPPIConfig, "alpha_u", 0.0), (MPPIConfig, "alpha_u", 1.5), (MPPIConfig, "w_goal", -1.0),
      (MPPIConfig, "control_bound", -0.3), (MPPIConfig, "dt", float("inf")), (MPPIConfig, "samples", 2.5),
      (MPPIConfig, "max_points", 0), (MPPIConfig, "goal_reach", 1), (MPPIConfig, "progress", 0.0),
+     (MPPIConfig, "first_iterations", 0),
      (Fixed, "value", 0.0), (EffectiveSampleSize, "target", 0.0), (EffectiveSampleSize, "target", 1.5),
      (EffectiveSampleSize, "escape", 30), (StallEscape, "after", 0), (StallEscape, "target", 2.0),
      (Sampling, "kind", "nearest"), (Sampling, "smoothing", 1.0), (Sampling, "clip", 0.0),

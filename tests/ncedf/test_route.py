@@ -473,7 +473,7 @@ def test_prepare_compiles_the_routes_programs_where_a_plan_is_due_so_the_plan_co
     before = [p._cache_size() for p in programs]
     state = mppi.init(jax.random.PRNGKey(0))
     mppi.warm_up(state, START, GOAL, cloud)
-    mppi.prepare(_stalled(state, 3), START, GOAL, cloud)  # a plan is due at 6 steps without progress (after=5)
+    mppi.prepare(_stalled(state, 4), START, GOAL, cloud)  # a plan is due at 6 steps without progress (after=5)
     assert [p._cache_size() for p in programs] == before
     due = _stalled(state, 5)
     mppi.prepare(due, START, GOAL, cloud)
