@@ -51,6 +51,7 @@ from ncedf.sampling import Sampling
 from ncedf.shapes import Shape, rescaled
 from ncedf.temperature import EffectiveSampleSize, Fixed, StallEscape
 from ncedf.units import to_reference, unit
+from ncedf.validate import unknown_fields
 
 #: The stages' types by field (a tuple where a stage has several kinds; None allowed where listed).
 STAGES = {
@@ -281,9 +282,9 @@ def config_to_dict(config: ControllerConfig) -> dict:
 
 def _build(cls, fields: dict, where: str):
     """``cls(**fields)``, a ValueError naming ``where`` and the unknown fields if there are any."""
-    unknown = set(fields) - {f.name for f in dataclasses.fields(cls)}
+    unknown = unknown_fields(cls, fields)
     if unknown:
-        raise ValueError(f"unknown {where} settings {sorted(unknown)}")
+        raise ValueError(f"unknown {where} settings {unknown}")
     return cls(**fields)
 
 

@@ -21,12 +21,17 @@ def _fail(config, name: str, rule: str):
     raise ValueError(f"{type(config).__name__}.{name} must be {rule}, got {getattr(config, name)!r}")
 
 
+def unknown_fields(kind: type, data: dict) -> list[str]:
+    """The keys of ``data`` that are not fields of the dataclass ``kind``, sorted."""
+    return sorted(set(data) - {field.name for field in dataclasses.fields(kind)})
+
+
 def nested(config, name: str, kind: type) -> None:
     """Make ``config``'s field ``name`` a ``kind``, built from its fields where it is a dict (a
     recording's settings); raise ValueError naming the field where it is neither or a key is unknown."""
     value = getattr(config, name)
     if isinstance(value, dict):
-        unknown = sorted(set(value) - {field.name for field in dataclasses.fields(kind)})
+        unknown = unknown_fields(kind, value)
         if unknown:
             _fail(config, name, f"a {kind.__name__} (no field {', '.join(unknown)})")
         object.__setattr__(config, name, kind(**value))
