@@ -258,7 +258,8 @@ def iterate(spec: RobotSpec, config, shape, nominal, key, stalled, arc, goal, po
     dist = state_distances(config, shape, arc, arcs, frames, u[:, 0], points, mask, model)
     terms = cost_terms(c, spec, arcs, goal_d, dist, nominal, eps)
     total = terms[0] + terms[1] + terms[2] + terms[3]
-    lo, spread = jnp.min(total), jnp.max(total) - jnp.min(total)
+    lo, hi = jnp.min(total), jnp.max(total)
+    spread = hi - lo
     norm = jnp.where(spread > 0, (total - lo) / jnp.where(spread > 0, spread, 1.0), 0.0)
     temperature = config.temperature.choose(norm, stalled)
     w = jnp.exp(-norm / temperature)
@@ -271,6 +272,9 @@ def first_plan(spec: RobotSpec, config, shape, state: MPPIState, arc, goal, poin
     """The plan and key for a step: at a step with no goal distance tracked yet (the first, and
     the first after a route is planned or ends), the plan updated ``first_iterations`` - 1 times
     from ``arc`` before the step's own update; the state's otherwise."""
+    if config.mppi.first_iterations == 1:
+        return state.nominal, state.key
+
     def once(_, carry):
         nominal, key = carry
         key, k_noise = jax.random.split(key)
@@ -280,8 +284,6 @@ def first_plan(spec: RobotSpec, config, shape, state: MPPIState, arc, goal, poin
     def refined():
         return jax.lax.fori_loop(0, config.mppi.first_iterations - 1, once, (state.nominal, state.key))
 
-    if config.mppi.first_iterations == 1:
-        return state.nominal, state.key
     return jax.lax.cond(jnp.isinf(state.best_goal), refined, lambda: (state.nominal, state.key))
 
 
