@@ -394,14 +394,13 @@ def test_a_moving_ball_beside_a_wall_is_closed_and_scored_where_it_will_be():
     arcs = sample_arc_lengths(jax.random.PRNGKey(1), spec, (400, spec.n_links))
     t = jnp.asarray(rng.uniform(0.0, 1.0, 400), jnp.float32)
     bound = np.asarray(model_clearance(fitted, arcs, forward_kinematics(arcs, spec), spec, t))
-    dense = rng.normal(size=(4000, 3))
-    dense = 0.5 * dense / np.linalg.norm(dense, axis=1, keepdims=True)
 
     def clearance(points):  # the body's least signed distance to points (N, 3) at each state's time
         return np.asarray(jax.vmap(lambda arc, s: jnp.min(robot_signed_distance(points + s * v, arc, spec)))(
             arcs, t))
 
-    sphere = clearance(jnp.asarray(centre + v * dt + dense, jnp.float32))
+    # Clear of a ball, the body's distance to it is its distance to the centre less the radius.
+    sphere = clearance(jnp.asarray((centre + v * dt)[None], jnp.float32)) - 0.5
     samples = clearance(jnp.asarray(now[-30:]))
     near = (sphere > 0.0) & (sphere < 1.0)
     assert near.sum() > 20
