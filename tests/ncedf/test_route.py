@@ -153,7 +153,7 @@ def test_the_soft_clearance_has_a_finite_gradient_with_a_ball_inside_the_bar(pol
     drawn = np.asarray(sample_arc_lengths(jax.random.PRNGKey(3), SPEC, (400, SPEC.n_links)), np.float32)
     depth = _exact(drawn)
     arc = jnp.asarray(drawn[np.argmin(depth)])
-    grad = jax.grad(lambda a: soft_clearance(polytopes, a, forward_kinematics(a, SPEC), SPEC))(arc)
+    grad = jax.jit(jax.grad(lambda a: soft_clearance(polytopes, a, forward_kinematics(a, SPEC), SPEC)))(arc)
     assert depth.min() < -SPEC.radius  # the backbone itself inside the bar, so cover balls' centres are
     assert np.all(np.isfinite(grad)) and np.any(np.asarray(grad) != 0.0)
 
