@@ -147,10 +147,15 @@ def point_capacity(n_points: int) -> int:
     return max(1, -(-n_points // POINT_BUCKET)) * POINT_BUCKET
 
 
+def _margin(observation: Observation, margin: float = MPPIConfig.safety_margin) -> float:
+    """The safety margin from the observed points: ``margin`` beyond the balls' radius, m."""
+    return margin + observation.ball_radius
+
+
 def _core(observation: Observation, samples: int, horizon: int, **fields) -> MPPIConfig:
-    """The core sized to the observation: its capacity, and the balls' radius added to the margin."""
+    """The core sized to the observation: its capacity, and its margin (:func:`_margin`)."""
     return MPPIConfig(samples=samples, horizon=horizon, max_points=point_capacity(observation.n_points),
-                      safety_margin=MPPIConfig.safety_margin + observation.ball_radius, **fields)
+                      safety_margin=_margin(observation), **fields)
 
 
 def paper(spec: RobotSpec, observation: Observation) -> ControllerConfig:
@@ -183,7 +188,7 @@ def ours(spec: RobotSpec, observation: Observation) -> ControllerConfig:
     if observation.ball_radius > 0:
         return dataclasses.replace(
             base, mppi=dataclasses.replace(base.mppi, goal_reach=True, first_iterations=BALLS_FIRST_ITERATIONS,
-                                           safety_margin=BALLS_MARGIN + observation.ball_radius),
+                                           safety_margin=_margin(observation, BALLS_MARGIN)),
             sampling=dataclasses.replace(base.sampling, smoothing=BALLS_SMOOTHING, unclipped=True),
             safety=SafetyFilter(sweep_first=True, follow_executed=True))
     if not observation.convex:
