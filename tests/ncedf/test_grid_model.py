@@ -211,9 +211,10 @@ def test_clouds_of_other_gaps_share_the_compiled_step_and_it_is_the_step_of_the_
         before = mppi_module.mppi_step._cache_size()
         action, _, _ = controller.step(state, arc, goal, points)
         added.append(mppi_module.mppi_step._cache_size() - before)
-        whole = mppi_module.mppi_step(controller.core_spec, config, controller.core_shape, state.mppi,
-                                      *controller._inputs(state, arc, goal, points))[0]
-        np.testing.assert_array_equal(np.asarray(action), np.asarray(whole) * controller.unit)
+    # The second cloud's action, from the program the first compiled, is its whole settings' step.
+    whole = mppi_module.mppi_step(controller.core_spec, config, controller.core_shape, state.mppi,
+                                  *controller._inputs(state, arc, goal, points))[0]
+    np.testing.assert_array_equal(np.asarray(action), np.asarray(whole) * controller.unit)
     assert gaps[0] != gaps[1] and added[1] == 0
 
 
