@@ -155,16 +155,19 @@ def record_verdict(stem: Path, goal_kind: str, env: int, world: World, goal: np.
                     "min_true_distance": result.min_distance} if found else {"outcome": "collision", "steps": 0})
 
 
-def open_environments(folder: Path) -> list[tuple[str, int]]:
+def open_environments(folder: Path) -> tuple[list[tuple[str, int]], int]:
     """(goal kind, environment seed) of the sphere episodes under ``folder`` that Table III counts
-    (:func:`analysis.load.sphere_episodes`) where none reached the goal, sorted."""
+    (:func:`analysis.load.sphere_episodes`) where none reached the goal, sorted; and the number of
+    sphere episodes of other robots (link counts, scales), which the floor does not judge."""
     from analysis.load import load, sphere_episodes
 
-    runs = sphere_episodes(load(folder))
+    recordings = load(folder)
+    runs = sphere_episodes(recordings)
+    others = len(recordings.scenario("spheres")) - len(runs)
     if runs.empty:
-        return []
+        return [], others
     solved = runs.groupby(["goal_kind", "env_seed"])["outcome"].apply(lambda o: bool((o == "success").any()))
-    return sorted((str(goal), int(env)) for (goal, env), ok in solved.items() if not ok)
+    return sorted((str(goal), int(env)) for (goal, env), ok in solved.items() if not ok), others
 
 
 def describe(goal_kind: str, env: int, verdict: Verdict) -> str:
@@ -200,10 +203,14 @@ def run_floor(folder: Path, starts: int = OracleConfig.starts) -> int:
 
     from scenarios.sweep import read_complete
 
-    todo = open_environments(folder)
+    todo, others = open_environments(folder)
     out, spec, config = folder / SCENARIO, RobotSpec(LINKS), OracleConfig(starts=starts)
     reach, start, done = Reach(spec, OracleConfig(starts=APPROACH_STARTS)), time.perf_counter(), 0
-    print(f"floor: {len(todo)} environments of {folder} where no recorded episode reached the goal", file=sys.stderr)
+    print(f"floor: {len(todo)} environments of {folder} where no recorded {LINKS}-link episode reached the goal",
+          file=sys.stderr)
+    if others:
+        print(f"floor: {others} sphere episodes of other robots left out (the floor judges Table III's robot, "
+              f"{LINKS} links as built)", file=sys.stderr)
     try:
         with stop_on_signals():
             for goal_kind, env in tqdm(todo, desc="floor", unit="env", file=sys.stderr, dynamic_ncols=True):

@@ -61,3 +61,17 @@ def test_a_verdict_reads_back_with_its_motion_and_facts(tmp_path, found):
         assert run.metrics["goal_distance"].iloc[0] == pytest.approx(np.linalg.norm(straight_tip - goal), abs=1e-5)
     else:
         assert len(run.metrics) == 0
+
+
+def test_the_floor_judges_the_paper_robots_open_environments_and_counts_the_other_robots(tmp_path):
+    """Open: an environment where no episode of the paper's 4-link robot reached the goal; the sphere
+    episodes of other link counts are counted apart, never judged."""
+    from recorder import Recorder
+
+    for links, env, outcome in ((4, 0, "collision"), (4, 1, "success"), (4, 1, "collision"), (5, 0, "collision"),
+                                (7, 2, "collision")):
+        meta = {"scenario": "spheres", "links": links, "env_seed": env, "settings": {"goal": "fixed"}}
+        with Recorder(tmp_path / f"L{links}_env{env}_{outcome}", meta, formats=("mcap",)) as rec:
+            rec.log_step(0, 0.0, metrics={"solver_ms": 1.0})
+            rec.finish({"outcome": outcome, "steps": 1})
+    assert floor.open_environments(tmp_path) == ([("fixed", 0)], 2)
