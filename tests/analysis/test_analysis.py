@@ -408,3 +408,22 @@ def test_a_run_of_another_robot_or_scale_is_labelled_by_what_differs():
     small = pd.Series({"robot.length": 0.1, "robot.radius": 0.01, "settings.options": [["scale", "0.05"]]})
     assert robot_label(small) == "L 0.1 m, r 0.01 m, scale 0.05"
     assert robot_label(pd.Series({"robot.length": 2.0, "robot.radius": [0.25, 0.2, 0.15]})) == "r 0.25-0.15 m"
+
+
+def test_table3_keeps_other_robots_in_rows_of_their_own_without_the_papers_figures_or_its_floor(tmp_path):
+    """Sphere episodes of 4 and 5 links in one folder: a row each; the 5-link row has no paper figure,
+    and its collision is not called avoidable for the 4-link robot's success in the same environment."""
+    from analysis.load import load
+    from analysis.tables import table3
+    from recorder import Recorder
+
+    for links, env, outcome in ((4, 0, "collision"), (4, 2, "success"), (5, 0, "success"), (5, 2, "collision")):
+        meta = {"scenario": "spheres", "links": links, "env_seed": env, "settings": {"goal": "fixed"},
+                "shape": "ncedf", "controller": "ours", "mppi": {"samples": 16, "horizon": 3}, "max_steps": 25}
+        with Recorder(tmp_path / f"L{links}_env{env}", meta, formats=("mcap",)) as rec:
+            rec.log_step(0, 0.0, metrics={"solver_ms": 2.0})
+            rec.finish({"outcome": outcome, "steps": 1})
+    data = table3(load(tmp_path)).data.set_index("links")
+    assert list(data.index) == [4, 5] and list(data["episodes"]) == [2, 2]
+    assert data.loc[4, "paper_success"] == pytest.approx(0.986) and math.isnan(data.loc[5, "paper_success"])
+    assert data.loc[5, "collision"] == 0.5 and math.isnan(data.loc[5, "avoidable"])
