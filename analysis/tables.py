@@ -245,7 +245,7 @@ def table3(rec: Recordings) -> Table | str:
         judged = environments[key[2]] if _paper_robot(*key[:2]) else (
             set(g.loc[g["outcome"] == "success", "env_seed"].astype(int)), set(), set(), False)
         floor, unknown = _floor(g, judged)
-        uncovered += unknown
+        uncovered += unknown if _paper_robot(*key[:2]) else 0
         d, row = _table3_row(key, g, floor)
         data.append(d)
         rows.append(row)
