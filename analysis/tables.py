@@ -157,14 +157,16 @@ def _groups(runs: pd.DataFrame, keys) -> list[tuple[tuple, pd.DataFrame]]:
     return list(runs.groupby(list(keys), sort=True, dropna=False))
 
 
-def _environments(rec: Recordings, goal: str) -> tuple[set, set, set, bool]:
-    """The sphere environments of one goal kind (:func:`analysis.load.sphere_episodes`) that some motion solves (a
-    recorded episode reached the goal, or the floor's oracle found a judged motion), where the oracle
-    found none, and where a collision is certain (``scenarios.floor``); and whether any verdict exists."""
+def _environments(rec: Recordings, links: int, goal: str) -> tuple[set, set, set, bool]:
+    """The sphere environments of one link count and goal kind (:func:`analysis.load.sphere_episodes`) that
+    some motion solves (a recorded episode reached the goal, or the floor's oracle found a judged motion),
+    where the oracle found none, and where a collision is certain (``scenarios.floor``); and whether any
+    verdict exists."""
     episodes = sphere_episodes(rec)
-    episodes = episodes[episodes["goal_kind"] == goal]
+    episodes = episodes[(episodes["goal_kind"] == goal) & (episodes["links"] == links)]
     verdicts = rec.scenario("floor")
-    verdicts = verdicts[verdicts["goal_kind"] == goal] if not verdicts.empty else verdicts
+    if not verdicts.empty:
+        verdicts = verdicts[(verdicts["goal_kind"] == goal) & (verdicts["links"] == links)]
     solved = set(episodes.loc[episodes["outcome"] == "success", "env_seed"].astype(int))
     if verdicts.empty:
         return solved, set(), set(), False
@@ -239,13 +241,12 @@ def table3(rec: Recordings) -> Table | str:
     groups = _groups(runs, ("links", "robot", "goal_kind", "shape", *_EPISODE_KEYS))
     groups.sort(key=lambda g: (not _paper_robot(*g[0][:2]), int(g[0][0]), g[0][1], g[0][8], g[0][2],
                                order.get(g[0][3], 99), g[0][3], *map(str, g[0][4:8])))
-    environments = {goal: _environments(rec, goal) for goal in runs["goal_kind"].unique()}
     for key, g in groups:
-        # The floor's verdicts are of Table III's robot; another robot's rows count their own successes.
-        judged = environments[key[2]] if _paper_robot(*key[:2]) else (
+        # The floor judges the paper's links (any count); a scaled robot's rows count their own successes.
+        judged = _environments(rec, int(key[0]), key[2]) if key[1] == "" else (
             set(g.loc[g["outcome"] == "success", "env_seed"].astype(int)), set(), set(), False)
         floor, unknown = _floor(g, judged)
-        uncovered += unknown if _paper_robot(*key[:2]) else 0
+        uncovered += unknown if key[1] == "" else 0
         d, row = _table3_row(key, g, floor)
         data.append(d)
         rows.append(row)
@@ -259,8 +260,8 @@ def table3(rec: Recordings) -> Table | str:
                      "`python -m scenarios.floor RUNS` judges them.")
     if not all(_paper_robot(*key[:2]) for key, _ in groups):
         notes.append(f"Rows naming their links (or robot and scale) are of another robot than the paper's "
-                     f"{paper.TABLE3_LINKS} links: no paper figure, and the floor (which judges the paper's robot) "
-                     "only from their own successes.")
+                     f"{paper.TABLE3_LINKS} links: no paper figure; the floor's verdicts are those of their link "
+                     "count (a scaled robot's: its own successes alone).")
     if df["quick"].any():
         notes.append(QUICK_NOTE)
     header = ["representation", "goal", "controller (samples, H)", "environments", "success [95% CI]", "paper",

@@ -1,8 +1,9 @@
 """What no controller can do among the dynamic spheres: ``python -m scenarios.floor RUNS``.
 
-For every environment (goal kind, environment seed) of the sphere episodes recorded under RUNS
-(the paper's 4-link robot) where no recorded episode reached the goal, two verdicts, recorded as
-one run of scenario ``floor`` (``RUNS/floor/floor_<goal>_env<N>.mcap``):
+For every environment (link count, goal kind, environment seed) of the sphere episodes recorded under
+RUNS (the paper's links, the scene as built) where no recorded episode reached the goal, two
+verdicts, recorded as one run of scenario ``floor`` (``RUNS/floor/floor_<goal>_env<N>.mcap`` for
+Table III's 4 links, ``..._env<N>_L<links>.mcap`` for others):
 
 * **certain**: every configuration contains the first link's base disk (arc lengths move the
   body, never its base), so a sphere that overlaps that disk in step k collides with every
@@ -44,7 +45,7 @@ from scenarios.world import World
 
 #: Scenario name of a verdict's recording.
 SCENARIO = "floor"
-#: The robot of the paper's sphere scene (Table III's).
+#: The robot of the paper's sphere scene (Table III's), whose verdicts' names carry no link count.
 LINKS = TABLE3_LINKS
 #: Control step of the scenarios, s (every preset keeps the default).
 STEP_DT = MPPIConfig.dt
@@ -128,11 +129,11 @@ def judge_environment(world: World, goal: np.ndarray, spec: RobotSpec, reach: Re
     return Verdict(step, certain, result)
 
 
-def verdict_stem(out: Path, goal: str, env: int) -> Path:
-    """``out/floor_<goal>_env<env>``, the goal's text made file-name safe and kept apart ("-4.5,0,1"
-    -> "m4p5_0_1")."""
-    safe = goal.replace("-", "m").replace(".", "p").replace(",", "_")
-    return out / f"{SCENARIO}_{re.sub(r'[^A-Za-z0-9_]', '', safe)}_env{env}"
+def verdict_stem(out: Path, goal: str, env: int, links: int = LINKS) -> Path:
+    """``out/floor_<goal>_env<env>`` (``_L<links>`` appended for another link count than Table III's),
+    the goal's text made file-name safe and kept apart ("-4.5,0,1" -> "m4p5_0_1")."""
+    safe = re.sub(r"[^A-Za-z0-9_]", "", goal.replace("-", "m").replace(".", "p").replace(",", "_"))
+    return out / f"{SCENARIO}_{safe}_env{env}{'' if links == LINKS else f'_L{links}'}"
 
 
 def record_verdict(stem: Path, goal_kind: str, env: int, world: World, goal: np.ndarray, spec: RobotSpec,
@@ -155,10 +156,10 @@ def record_verdict(stem: Path, goal_kind: str, env: int, world: World, goal: np.
                     "min_true_distance": result.min_distance} if found else {"outcome": "collision", "steps": 0})
 
 
-def open_environments(folder: Path) -> tuple[list[tuple[str, int]], int]:
-    """(goal kind, environment seed) of the sphere episodes under ``folder`` that Table III counts
+def open_environments(folder: Path) -> tuple[list[tuple[int, str, int]], int]:
+    """(links, goal kind, environment seed) of the sphere episodes under ``folder`` of the paper's links
     (:func:`analysis.load.sphere_episodes`) where none reached the goal, sorted; and the number of
-    sphere episodes of other robots (link counts, scales), which the floor does not judge."""
+    sphere episodes of other robots (links of another size, a scaled scene), which it does not judge."""
     from analysis.load import load, sphere_episodes
 
     recordings = load(folder)
@@ -166,13 +167,14 @@ def open_environments(folder: Path) -> tuple[list[tuple[str, int]], int]:
     others = len(recordings.scenario("spheres")) - len(runs)
     if runs.empty:
         return [], others
-    solved = runs.groupby(["goal_kind", "env_seed"])["outcome"].apply(lambda o: bool((o == "success").any()))
-    return sorted((str(goal), int(env)) for (goal, env), ok in solved.items() if not ok), others
+    keys = ["links", "goal_kind", "env_seed"]
+    solved = runs.groupby(keys)["outcome"].apply(lambda o: bool((o == "success").any()))
+    return sorted((int(links), str(goal), int(env)) for (links, goal, env), ok in solved.items() if not ok), others
 
 
-def describe(goal_kind: str, env: int, verdict: Verdict) -> str:
+def describe(links: int, goal_kind: str, env: int, verdict: Verdict) -> str:
     """One line per verdict, as the command prints it."""
-    where = f"{goal_kind} goal, env {env}: "
+    where = f"{links} links, {goal_kind} goal, env {env}: "
     if verdict.certain:
         return where + f"certain collision (a sphere on the base disk in step {verdict.base_hit_step})"
     result = verdict.result
@@ -204,22 +206,23 @@ def run_floor(folder: Path, starts: int = OracleConfig.starts) -> int:
     from scenarios.sweep import read_complete
 
     todo, others = open_environments(folder)
-    out, spec, config = folder / SCENARIO, RobotSpec(LINKS), OracleConfig(starts=starts)
-    reach, start, done = Reach(spec, OracleConfig(starts=APPROACH_STARTS)), time.perf_counter(), 0
-    print(f"floor: {len(todo)} environments of {folder} where no recorded {LINKS}-link episode reached the goal",
-          file=sys.stderr)
+    out, config, reaches = folder / SCENARIO, OracleConfig(starts=starts), {}
+    start, done = time.perf_counter(), 0
+    print(f"floor: {len(todo)} environments of {folder} where no recorded episode reached the goal", file=sys.stderr)
     if others:
-        print(f"floor: {others} sphere episodes of other robots left out (the floor judges Table III's robot, "
-              f"{LINKS} links as built)", file=sys.stderr)
+        print(f"floor: {others} sphere episodes of other robots left out (it judges the paper's links, the scene "
+              "as built)", file=sys.stderr)
     try:
         with stop_on_signals():
-            for goal_kind, env in tqdm(todo, desc="floor", unit="env", file=sys.stderr, dynamic_ncols=True):
-                stem = verdict_stem(out, goal_kind, env)
+            for links, goal_kind, env in tqdm(todo, desc="floor", unit="env", file=sys.stderr, dynamic_ncols=True):
+                stem = verdict_stem(out, goal_kind, env, links)
                 if read_complete(stem, ("mcap",)) is None:
+                    spec = RobotSpec(links)
+                    reach = reaches.setdefault(links, Reach(spec, OracleConfig(starts=APPROACH_STARTS)))
                     world, goal, _ = make_environment(env, spec, goal_kind)
                     verdict = judge_environment(world, goal, spec, reach, config, jax.random.PRNGKey(env))
                     record_verdict(stem, goal_kind, env, world, goal, spec, verdict)
-                    tqdm.write(describe(goal_kind, env, verdict), file=sys.stdout)
+                    tqdm.write(describe(links, goal_kind, env, verdict), file=sys.stdout)
                 done += 1
     except (Stopped, RecordingInterrupted) as stop:
         signum = stop.signum if isinstance(stop, Stopped) else \

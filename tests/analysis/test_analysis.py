@@ -115,10 +115,10 @@ def verdicts(folder):
     runs, results, _ = folder
     open_envs, others = floor.open_environments(runs)
     outcome = {(s.goal, s.env_seed): r.outcome for s, r in results.values() if s.scenario == "spheres"}
-    assert open_envs == sorted(k for k, o in outcome.items() if o != "success") and open_envs and others == 0
+    assert open_envs == sorted((4, *k) for k, o in outcome.items() if o != "success") and open_envs and others == 0
     assert "collision" in outcome.values(), "the fixture should give a collision to judge"
     spec, planted = RobotSpec(4), {}
-    for i, (goal, env) in enumerate(open_envs):
+    for i, (_, goal, env) in enumerate(open_envs):
         world, target, _ = make_environment(env, spec, goal)
         arcs = np.repeat(np.asarray(spec.straight_state(), np.float64)[None], 3, axis=0)
         kind = "found" if outcome[(goal, env)] == "collision" else ("certain", "none")[i % 2]
@@ -410,7 +410,7 @@ def test_a_run_of_another_robot_or_scale_is_labelled_by_what_differs():
     assert robot_label(pd.Series({"robot.length": 2.0, "robot.radius": [0.25, 0.2, 0.15]})) == "r 0.25-0.15 m"
 
 
-def test_table3_keeps_other_robots_in_rows_of_their_own_without_the_papers_figures_or_its_floor(tmp_path):
+def test_table3_keeps_other_link_counts_in_rows_of_their_own_without_the_papers_figures_or_its_floor(tmp_path):
     """Sphere episodes of 4 and 5 links in one folder: a row each; the 5-link row has no paper figure,
     and its collision is not called avoidable for the 4-link robot's success in the same environment."""
     from analysis.load import load

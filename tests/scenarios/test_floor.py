@@ -63,15 +63,17 @@ def test_a_verdict_reads_back_with_its_motion_and_facts(tmp_path, found):
         assert len(run.metrics) == 0
 
 
-def test_the_floor_judges_the_paper_robots_open_environments_and_counts_the_other_robots(tmp_path):
-    """Open: an environment where no episode of the paper's 4-link robot reached the goal; the sphere
-    episodes of other link counts are counted apart, never judged."""
+def test_open_environments_are_per_link_count_and_a_scaled_robots_episodes_are_counted_apart(tmp_path):
+    """Open: an environment where no episode of that link count reached the goal (another link count's
+    success there does not close it); a robot of other link sizes is counted apart, never judged."""
     from recorder import Recorder
 
-    for links, env, outcome in ((4, 0, "collision"), (4, 1, "success"), (4, 1, "collision"), (5, 0, "collision"),
-                                (7, 2, "collision")):
-        meta = {"scenario": "spheres", "links": links, "env_seed": env, "settings": {"goal": "fixed"}}
-        with Recorder(tmp_path / f"L{links}_env{env}_{outcome}", meta, formats=("mcap",)) as rec:
+    for links, env, outcome, length in ((4, 0, "collision", 2.0), (4, 1, "success", 2.0), (4, 1, "collision", 2.0),
+                                        (5, 1, "collision", 2.0), (5, 0, "success", 2.0), (4, 3, "collision", 1.0)):
+        meta = {"scenario": "spheres", "links": links, "env_seed": env, "settings": {"goal": "fixed"},
+                "robot": {"length": length}}
+        with Recorder(tmp_path / f"L{links}_env{env}_{outcome}_{length}", meta, formats=("mcap",)) as rec:
             rec.log_step(0, 0.0, metrics={"solver_ms": 1.0})
             rec.finish({"outcome": outcome, "steps": 1})
-    assert floor.open_environments(tmp_path) == ([("fixed", 0)], 2)
+    assert floor.open_environments(tmp_path) == ([(4, "fixed", 0), (5, "fixed", 1)], 1)
+    assert floor.verdict_stem(tmp_path, "fixed", 1, 5).name == "floor_fixed_env1_L5"
