@@ -101,7 +101,9 @@ def fig3(model_path: str | None = None):
 # ---------------------------------------------------------------- Fig. 4
 def fig4(rec: Recordings):
     """Goal distance and robot-obstacle distances (predicted, exact) with the safety margin, one sphere run."""
-    run = _pick(rec.scenario("spheres"))
+    runs = rec.scenario("spheres")
+    paper_robot = runs[[paper.table3_robot(n, r) for n, r in zip(runs["links"], runs["robot"])]] if len(runs) else runs
+    run = _pick(paper_robot if len(paper_robot) else runs)  # Table III's robot where the folder has it
     if run is None:
         return "fig4: skipped, no dynamic-sphere recordings (python -m scenarios.reproduce table3 --out RUNS)"
     s = load_run(run["path"]).metrics
@@ -251,24 +253,26 @@ def success_rates(rec: Recordings):
     runs = rec.scenario("spheres")
     if runs.empty:
         return "success rates: skipped, no dynamic-sphere recordings (python -m scenarios.reproduce table3 --out RUNS)"
-    groups = list(runs.groupby(["shape", "controller", "goal_kind", "quick"]))
+    groups = list(runs.groupby(["links", "robot", "shape", "controller", "goal_kind", "quick"]))
     order = {s: i for i, s in enumerate(paper.TABLE3)}
-    groups.sort(key=lambda g: (order.get(g[0][0], 99), g[0][1], g[0][2]))
+    groups.sort(key=lambda g: (not paper.table3_robot(*g[0][:2]), int(g[0][0]), g[0][1], order.get(g[0][2], 99),
+                               g[0][3], g[0][4]))
     rows = []
-    for (shape, controller, goal, quick), g in groups:
+    for (links, robot, shape, controller, goal, quick), g in groups:
         n, k = len(g), int((g["outcome"] == "success").sum())
         low, high = wilson(k, n)
-        rows.append({"shape": shape, "controller": controller, "goal": goal, "quick": quick, "episodes": n,
-                     "successes": k,
-                     "success": k / n, "low": low, "high": high,
-                     "paper_success": paper.table3_reference(shape, goal)[0]})
+        ours = paper.table3_robot(links, robot)  # the paper's figure only beside its own robot
+        rows.append({"links": int(links), "robot": robot, "shape": shape, "controller": controller, "goal": goal,
+                     "quick": quick, "episodes": n, "successes": k, "success": k / n, "low": low, "high": high,
+                     "paper_success": paper.table3_reference(shape, goal)[0] if ours else np.nan})
     df = pd.DataFrame(rows)
     fig, ax = plt.subplots(figsize=(COLUMN_IN, 1.2 + 0.2 * len(df)), layout="constrained")
     y = np.arange(len(df))
     ax.errorbar(df["success"], y, xerr=[df["success"] - df["low"], df["high"] - df["success"]], fmt="o",
                 color="black", capsize=2, ms=4, label="measured here, Wilson 95% interval")
     ax.plot(df["paper_success"], y, "x", color="0.45", ms=6, label="paper (1000 environments)")
-    ax.set_yticks(y, [f"{r.shape}, {r.controller}" + ("" if r.goal == "fixed" else f", {r.goal} goal")
+    ax.set_yticks(y, [f"{r.shape}{paper.robot_tag(r.links, r.robot)}, {r.controller}"
+                      + ("" if r.goal == "fixed" else f", {r.goal} goal")
                       + (" (quick)" if r.quick else "") + f" (n={r.episodes})" for r in df.itertuples()])
     ax.set_title("dynamic spheres; n: environments per row")
     ax.set_xlabel("success rate")

@@ -33,6 +33,17 @@ TABLE3 = {
 TABLE3_GOALS = ("fixed", "random")
 
 
+def table3_robot(links, robot: str) -> bool:
+    """Whether sphere episodes are of Table III's robot: its links (``TABLE3_LINKS`` of them), the scene as
+    built (``robot``: ``analysis.load.robot_label``, "" for the paper's links at scale 1)."""
+    return int(links) == TABLE3_LINKS and robot == ""
+
+
+def robot_tag(links, robot: str) -> str:
+    """", 5 links" (and the robot's label) naming sphere rows of another robot than Table III's, else ""."""
+    return "" if table3_robot(links, robot) else f", {int(links)} links" + (f", {robot}" if robot else "")
+
+
 def table3_reference(shape: str, goal: str) -> tuple[float, float, float, float]:
     """Table III's (success, collision, stuck, MPPI step s) for a representation and goal kind; NaN where the
     paper has no figure."""

@@ -195,25 +195,19 @@ def _floor(g: pd.DataFrame, environments: tuple[set, set, set, bool]) -> tuple[d
     return out, unknown
 
 
-def _paper_robot(links, robot: str) -> bool:
-    """Whether a sphere row is of Table III's robot (the paper's links, the scene as built)."""
-    return int(links) == paper.TABLE3_LINKS and robot == ""
-
-
 def _table3_row(key: tuple, g: pd.DataFrame, floor: dict) -> tuple[dict, list]:
     links, robot, goal, shape, controller, samples, horizon, max_steps, quick = key
     r = _rates(g["outcome"])
     t_mean, t_std, t_n = _solver(g)
-    ours = _paper_robot(links, robot)
+    ours = paper.table3_robot(links, robot)
     ref = paper.table3_reference(shape, goal) if ours else (math.nan,) * 4
-    other = "" if ours else f", {int(links)} links" + (f", {robot}" if robot else "")
     data = {"links": int(links), "robot": robot, "shape": shape, "goal": goal, "controller": controller,
             "samples": int(samples),
             "horizon": int(horizon), "max_steps": int(max_steps), "quick": bool(quick), **r, **floor,
             "mppi_step_s_mean": t_mean, "mppi_step_s_std": t_std, "mppi_steps": t_n, "paper_success": ref[0],
             "paper_collision": ref[1], "paper_stuck": ref[2], "paper_mppi_step_s": ref[3],
-            "paper_environments": paper.TABLE3_ENVIRONMENTS}
-    row = [f"{shape}{other}{_quick_tag(quick)}", goal, f"{controller} ({int(samples)}, H {int(horizon)})",
+            "paper_environments": paper.TABLE3_ENVIRONMENTS if ours else math.nan}
+    row = [f"{shape}{paper.robot_tag(links, robot)}{_quick_tag(quick)}", goal, f"{controller} ({int(samples)}, H {int(horizon)})",
            str(r["episodes"]), fmt_rate(r["success"], r["success_low"], r["success_high"]), fmt(ref[0]),
            fmt_rate(r["collision"], r["collision_low"], r["collision_high"]), fmt(ref[1]),
            *(fmt_rate(floor[k], floor[f"{k}_low"], floor[f"{k}_high"]) for k in ("avoidable", "unsolved", "certain")),
@@ -225,7 +219,7 @@ TABLE3_NOTES = (
     "Rates with Wilson 95% intervals over the episodes (environments) of each row; MPPI step time: mean ± std "
     "over every step of those episodes, s.",
     "Avoidable: collisions in environments that some motion solves (a recorded episode of the same environment "
-    "reached the goal, or the omniscient planner of `python -m scenarios.floor RUNS` found a motion the exact "
+    "and link count reached the goal, or the omniscient planner of `python -m scenarios.floor RUNS` found a motion the exact "
     "judge passes). Oracle unsolved: environments where no recorded episode reached the goal and that planner "
     "found no motion (a local search: evidence, not proof). Certain: a sphere overlaps the base disk, part of "
     "every configuration, before any motion can reach the goal; every controller collides there. '-': no "
@@ -239,7 +233,7 @@ def table3(rec: Recordings) -> Table | str:
     rows, data, uncovered = [], [], 0
     order = {s: i for i, s in enumerate(paper.TABLE3)}
     groups = _groups(runs, ("links", "robot", "goal_kind", "shape", *_EPISODE_KEYS))
-    groups.sort(key=lambda g: (not _paper_robot(*g[0][:2]), int(g[0][0]), g[0][1], g[0][8], g[0][2],
+    groups.sort(key=lambda g: (not paper.table3_robot(*g[0][:2]), int(g[0][0]), g[0][1], g[0][8], g[0][2],
                                order.get(g[0][3], 99), g[0][3], *map(str, g[0][4:8])))
     for key, g in groups:
         # The floor judges the paper's links (any count); a scaled robot's rows count their own successes.
@@ -258,7 +252,7 @@ def table3(rec: Recordings) -> Table | str:
     if uncovered:
         notes.append(f"{uncovered} collisions lie in environments with no verdict and no recorded success: "
                      "`python -m scenarios.floor RUNS` judges them.")
-    if not all(_paper_robot(*key[:2]) for key, _ in groups):
+    if not all(paper.table3_robot(*key[:2]) for key, _ in groups):
         notes.append(f"Rows naming their links (or robot and scale) are of another robot than the paper's "
                      f"{paper.TABLE3_LINKS} links: no paper figure; the floor's verdicts are those of their link "
                      "count (a scaled robot's: its own successes alone).")

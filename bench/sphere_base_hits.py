@@ -45,7 +45,7 @@ from arguments import positive  # noqa: E402
 from ncedf.robot import RobotSpec  # noqa: E402
 from recorder.cli import OneLineParser, exit_with  # noqa: E402
 from scenarios.episode import goal_text  # noqa: E402
-from scenarios.floor import BASE_DT, STEP_DT, Reach, first_base_hit, hit_step  # noqa: E402
+from scenarios.floor import BASE_DT, LINKS, STEP_DT, Reach, first_base_hit, hit_step  # noqa: E402
 from scenarios.oracle import OracleConfig  # noqa: E402
 from scenarios.spheres import MAX_STEPS, TOLERANCE, make_environment  # noqa: E402
 
@@ -61,7 +61,7 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     if args.dt <= 0:
         p.error(f"--dt must be > 0, got {args.dt}")
-    spec = RobotSpec(4)
+    spec = RobotSpec(LINKS)
     hits, goals = {}, {}
     for env in range(args.envs):
         world, goals[env], _ = make_environment(env, spec, args.goal)
@@ -85,7 +85,8 @@ def main(argv=None) -> int:
         from recorder.read import load_summaries
 
         df = load_summaries(args.runs)
-        df = df[(df.scenario == "spheres") & (df["settings.goal"] == args.goal) & (df.env_seed < args.envs)]
+        df = df[(df.scenario == "spheres") & (df["settings.goal"] == args.goal) & (df.env_seed < args.envs)
+                & (df.links == LINKS)]  # the robot judged here
         for (shape, controller), g in df.groupby(["shape", "controller"]):
             fastest = g.loc[g.outcome == "success", "reach_step"].min()
             coll = g[g.outcome == "collision"]

@@ -54,7 +54,8 @@ def recorded_collisions(folder: str, goal: str, envs: range) -> dict[int, list[s
     from recorder.read import load_summaries
 
     df = load_summaries(folder)
-    df = df[(df.scenario == "spheres") & (df["settings.goal"] == goal) & (df.outcome == "collision")]
+    df = df[(df.scenario == "spheres") & (df["settings.goal"] == goal) & (df.outcome == "collision")
+            & (df.links == LINKS)]  # the robot judged here
     out: dict[int, list[str]] = {}
     for _, row in df.iterrows():
         env = int(row.env_seed)

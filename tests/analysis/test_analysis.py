@@ -410,20 +410,32 @@ def test_a_run_of_another_robot_or_scale_is_labelled_by_what_differs():
     assert robot_label(pd.Series({"robot.length": 2.0, "robot.radius": [0.25, 0.2, 0.15]})) == "r 0.25-0.15 m"
 
 
-def test_table3_keeps_other_link_counts_in_rows_of_their_own_without_the_papers_figures_or_its_floor(tmp_path):
-    """Sphere episodes of 4 and 5 links in one folder: a row each; the 5-link row has no paper figure,
-    and its collision is not called avoidable for the 4-link robot's success in the same environment."""
+def test_table3_keeps_other_robots_in_rows_of_their_own_with_their_own_floor(tmp_path):
+    """Sphere episodes of 4 and 5 links and of a scaled 4-link robot in one folder: a row each; only the
+    paper's robot's row has the paper's figures; a 5-link verdict does not judge the 4-link robot's
+    environment, nor a 4-link success the 5-link one's; the floor's note counts the unjudged collisions
+    of the paper's links (4 and 5), not the scaled robot's, which the floor never judges."""
     from analysis.load import load
     from analysis.tables import table3
     from recorder import Recorder
 
-    for links, env, outcome in ((4, 0, "collision"), (4, 2, "success"), (5, 0, "success"), (5, 2, "collision")):
-        meta = {"scenario": "spheres", "links": links, "env_seed": env, "settings": {"goal": "fixed"},
-                "shape": "ncedf", "controller": "ours", "mppi": {"samples": 16, "horizon": 3}, "max_steps": 25}
-        with Recorder(tmp_path / f"L{links}_env{env}", meta, formats=("mcap",)) as rec:
+    def record(name, meta, outcome):
+        with Recorder(tmp_path / name, meta, formats=("mcap",)) as rec:
             rec.log_step(0, 0.0, metrics={"solver_ms": 2.0})
             rec.finish({"outcome": outcome, "steps": 1})
-    data = table3(load(tmp_path)).data.set_index("links")
-    assert list(data.index) == [4, 5] and list(data["episodes"]) == [2, 2]
-    assert data.loc[4, "paper_success"] == pytest.approx(0.986) and math.isnan(data.loc[5, "paper_success"])
-    assert data.loc[5, "collision"] == 0.5 and math.isnan(data.loc[5, "avoidable"])
+
+    for links, env, outcome, length in ((4, 0, "collision", 2.0), (4, 2, "success", 2.0), (5, 0, "success", 2.0),
+                                        (5, 2, "collision", 2.0), (4, 2, "collision", 1.0)):
+        record(f"L{links}_env{env}_{length}", {
+            "scenario": "spheres", "links": links, "env_seed": env, "settings": {"goal": "fixed"}, "shape": "ncedf",
+            "controller": "ours", "mppi": {"samples": 16, "horizon": 3}, "max_steps": 25,
+            "robot": {"length": length}}, outcome)
+    record("floor_fixed_env0_L5", {"scenario": "floor", "links": 5, "env_seed": 0, "settings": {"goal": "fixed"}},
+           "success")
+    table = table3(load(tmp_path))
+    data = table.data.set_index(["links", "robot"])
+    assert list(data.index) == [(4, ""), (4, "L 1 m"), (5, "")] and list(data["episodes"]) == [2, 1, 2]
+    assert data.loc[(4, ""), "paper_success"] == pytest.approx(0.986)
+    assert np.isnan(data.loc[(5, ""), "paper_success"]) and np.isnan(data.loc[(4, "L 1 m"), "paper_success"])
+    assert np.isnan(data.loc[(4, ""), "avoidable"]) and np.isnan(data.loc[(5, ""), "avoidable"])
+    assert any(note.startswith("2 collisions lie in environments with no verdict") for note in table.notes)

@@ -2,7 +2,7 @@
 
 Tiny episodes (16 rollouts, horizon 3, at most 25 steps: environments 0-4 end in a mix of
 outcomes) of the spheres scenario with the spheres representation and the release controller (the
-sweep's machinery is the subject: its programs load in a worker in half the time of ``ours``; the
+sweep's machinery is the subject: its programs load in a worker in half the time of ``ours``); the
 sweeps share one persistent compilation cache, so the configuration compiles once for the whole file.
 """
 
