@@ -207,7 +207,8 @@ def _table3_row(key: tuple, g: pd.DataFrame, floor: dict) -> tuple[dict, list]:
             "mppi_step_s_mean": t_mean, "mppi_step_s_std": t_std, "mppi_steps": t_n, "paper_success": ref[0],
             "paper_collision": ref[1], "paper_stuck": ref[2], "paper_mppi_step_s": ref[3],
             "paper_environments": paper.TABLE3_ENVIRONMENTS if ours else math.nan}
-    row = [f"{shape}{paper.robot_tag(links, robot)}{_quick_tag(quick)}", goal, f"{controller} ({int(samples)}, H {int(horizon)})",
+    row = [f"{shape}{paper.robot_tag(links, robot)}{_quick_tag(quick)}", goal,
+           f"{controller} ({int(samples)}, H {int(horizon)})",
            str(r["episodes"]), fmt_rate(r["success"], r["success_low"], r["success_high"]), fmt(ref[0]),
            fmt_rate(r["collision"], r["collision_low"], r["collision_high"]), fmt(ref[1]),
            *(fmt_rate(floor[k], floor[f"{k}_low"], floor[f"{k}_high"]) for k in ("avoidable", "unsolved", "certain")),
@@ -219,11 +220,11 @@ TABLE3_NOTES = (
     "Rates with Wilson 95% intervals over the episodes (environments) of each row; MPPI step time: mean ± std "
     "over every step of those episodes, s.",
     "Avoidable: collisions in environments that some motion solves (a recorded episode of the same environment "
-    "and link count reached the goal, or the omniscient planner of `python -m scenarios.floor RUNS` found a motion the exact "
-    "judge passes). Oracle unsolved: environments where no recorded episode reached the goal and that planner "
-    "found no motion (a local search: evidence, not proof). Certain: a sphere overlaps the base disk, part of "
-    "every configuration, before any motion can reach the goal; every controller collides there. '-': no "
-    "verdicts recorded (for the avoidable rate: some collision of the row neither judged nor solved).")
+    "and link count reached the goal, or the omniscient planner of `python -m scenarios.floor RUNS` found a "
+    "motion the exact judge passes). Oracle unsolved: environments where no recorded episode reached the goal "
+    "and that planner found no motion (a local search: evidence, not proof). Certain: a sphere overlaps the base "
+    "disk, part of every configuration, before any motion can reach the goal; every controller collides there. "
+    "'-': no verdicts recorded (for the avoidable rate: some collision of the row neither judged nor solved).")
 
 
 def table3(rec: Recordings) -> Table | str:
@@ -235,9 +236,12 @@ def table3(rec: Recordings) -> Table | str:
     groups = _groups(runs, ("links", "robot", "goal_kind", "shape", *_EPISODE_KEYS))
     groups.sort(key=lambda g: (not paper.table3_robot(*g[0][:2]), int(g[0][0]), g[0][1], g[0][8], g[0][2],
                                order.get(g[0][3], 99), g[0][3], *map(str, g[0][4:8])))
+    # The floor judges the paper's links (any count), once per link count and goal kind; a scaled robot's
+    # rows count their own successes.
+    judged_kinds = {(int(key[0]), key[2]) for key, _ in groups if key[1] == ""}
+    environments = {kind: _environments(rec, *kind) for kind in judged_kinds}
     for key, g in groups:
-        # The floor judges the paper's links (any count); a scaled robot's rows count their own successes.
-        judged = _environments(rec, int(key[0]), key[2]) if key[1] == "" else (
+        judged = environments[(int(key[0]), key[2])] if key[1] == "" else (
             set(g.loc[g["outcome"] == "success", "env_seed"].astype(int)), set(), set(), False)
         floor, unknown = _floor(g, judged)
         uncovered += unknown if key[1] == "" else 0

@@ -218,7 +218,9 @@ def run_floor(folder: Path, starts: int = OracleConfig.starts) -> int:
                 stem = verdict_stem(out, goal_kind, env, links)
                 if read_complete(stem, ("mcap",)) is None:
                     spec = RobotSpec(links)
-                    reach = reaches.setdefault(links, Reach(spec, OracleConfig(starts=APPROACH_STARTS)))
+                    if links not in reaches:  # its searches' memory serves every environment of the robot
+                        reaches[links] = Reach(spec, OracleConfig(starts=APPROACH_STARTS))
+                    reach = reaches[links]
                     world, goal, _ = make_environment(env, spec, goal_kind)
                     verdict = judge_environment(world, goal, spec, reach, config, jax.random.PRNGKey(env))
                     record_verdict(stem, goal_kind, env, world, goal, spec, verdict)

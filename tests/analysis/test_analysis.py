@@ -115,7 +115,8 @@ def verdicts(folder):
     runs, results, _ = folder
     open_envs, others = floor.open_environments(runs)
     outcome = {(s.goal, s.env_seed): r.outcome for s, r in results.values() if s.scenario == "spheres"}
-    assert open_envs == sorted((4, *k) for k, o in outcome.items() if o != "success") and open_envs and others == 0
+    assert open_envs == sorted((4, *k) for k, o in outcome.items() if o != "success")
+    assert open_envs and others == 0
     assert "collision" in outcome.values(), "the fixture should give a collision to judge"
     spec, planted = RobotSpec(4), {}
     for i, (_, goal, env) in enumerate(open_envs):
