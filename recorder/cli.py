@@ -1,6 +1,6 @@
 """Command-line conventions every command of the project shares (scenario runners, sweeps,
-reproduce, analysis): one-line argument errors, and SIGINT / SIGTERM raised as ``Stopped`` with
-exit status 130 / 143. Here because ``recorder`` is the one package every command depends on."""
+reproduce, analysis): one-line argument errors and warnings, and SIGINT / SIGTERM raised as
+``Stopped`` with exit status 130 / 143. Here because ``recorder`` is the one package every command depends on."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ import contextlib
 import os
 import signal
 import sys
+import warnings
 from typing import NoReturn
 
 #: Exit status per signal: 128 + its number.
@@ -20,6 +21,25 @@ class OneLineParser(argparse.ArgumentParser):
 
     def error(self, message: str):
         self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+@contextlib.contextmanager
+def one_line_warnings(once=()):
+    """Inside the block, warnings are shown as ``warning: message`` on stderr (not Python's source
+    location and line), and those of the categories ``once`` only the first time their text comes.
+    (Not the filters' "once": a change of the filters, as any ``catch_warnings`` makes, forgets it.)"""
+    shown = set()
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        if issubclass(category, tuple(once)):
+            if str(message) in shown:
+                return
+            shown.add(str(message))
+        print(f"warning: {message}", file=sys.stderr)
+
+    with warnings.catch_warnings():
+        warnings.showwarning = show
+        yield
 
 
 class Stopped(BaseException):

@@ -18,14 +18,13 @@ import argparse
 import math
 import signal
 import sys
-import warnings
 from pathlib import Path
 from typing import Callable
 
 from ncedf.compile_cache import add_cache_option, enable_compile_cache
 from ncedf.presets import DEFAULT, PRESETS, SUMMARIES
 from recorder import RecorderError
-from recorder.cli import EXIT_STATUS, OneLineParser, Stopped, stop_on_signals
+from recorder.cli import EXIT_STATUS, OneLineParser, Stopped, one_line_warnings, stop_on_signals
 from recorder.recorder import FORMATS, check_writable, output_paths
 from scenarios.episode import Episode, EpisodeResult, EpisodeSettings
 
@@ -118,15 +117,10 @@ def scenario_main(scenario: str, description: str, max_steps: int, argv: list[st
                    lambda args: base_settings(scenario, args))
 
 
-def _one_line_warning(message, category, filename, lineno, file=None, line=None) -> None:
-    print(f"warning: {message}", file=sys.stderr)
-
-
 def run_cli(parser: argparse.ArgumentParser, argv: list[str] | None,
             make_settings: Callable[[argparse.Namespace], EpisodeSettings]) -> int:
     """Parse, validate, run one recorded episode with a progress bar, print the summary; the exit status."""
-    with warnings.catch_warnings():
-        warnings.showwarning = _one_line_warning
+    with one_line_warnings():
         return _run(parser, argv, make_settings)
 
 

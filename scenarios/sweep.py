@@ -76,7 +76,7 @@ from typing import TYPE_CHECKING, Callable, Sequence
 from tqdm import tqdm
 
 from recorder import IncompleteRecordingWarning, RecorderError, RecordingInterrupted, load_run
-from recorder.cli import EXIT_STATUS, OneLineParser, Stopped, exit_with, stop_on_signals
+from recorder.cli import EXIT_STATUS, OneLineParser, Stopped, exit_with, one_line_warnings, stop_on_signals
 from recorder.recorder import FORMATS, output_paths
 from scenarios import manifest
 
@@ -270,12 +270,16 @@ def release_programs(share: float | None = None) -> bool:
 
 def run_one(settings: EpisodeSettings, stem: str, formats: Sequence[str]) -> tuple[float, str | None]:
     """Run one episode into `stem` (overwriting) -> (wall seconds, None or the error on one line); then
-    :func:`release_programs`, as a worker runs many."""
+    :func:`release_programs`, as a worker runs many. An obstacle file's mesh warnings are not repeated:
+    the sweep's check (`check_configurations`) showed them before the workers started."""
     from scenarios.episode import run_episode
+    from scenarios.mesh_check import MeshWarning
 
     start = time.perf_counter()
     try:
-        run_episode(settings, out=stem, formats=tuple(formats), overwrite=True)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", MeshWarning)
+            run_episode(settings, out=stem, formats=tuple(formats), overwrite=True)
     except Exception as exc:  # reported by the sweep; the other episodes go on
         return time.perf_counter() - start, one_line(exc)
     finally:
@@ -696,7 +700,7 @@ def main(argv=None) -> int:
     command = "python -m scenarios.sweep " + " ".join(sys.argv[1:] if argv is None else argv)
     # Outside the sweep loop (checks before it, the summary after it) a signal stops at once.
     try:
-        with stop_on_signals():
+        with stop_on_signals(), one_line_warnings(once=(UserWarning,)):  # not once per configuration checked
             return _main(args, command)
     except Stopped as exc:
         print(f"stopped by {exc}; recordings already complete are kept", file=sys.stderr)

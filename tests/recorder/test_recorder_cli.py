@@ -1,11 +1,15 @@
 """The shared command-line conventions (``recorder.cli``): a signal that interrupts an XLA compilation
-still ends the command with its one line and exit status 130, not a crash in the interpreter's teardown."""
+still ends the command with its one line and exit status 130, not a crash in the interpreter's teardown;
+warnings on one line, those asked for once per text."""
 
 import subprocess
 import sys
 import textwrap
+import warnings
 
 import pytest
+
+from recorder.cli import one_line_warnings
 
 #: A command that compiles a long chain of operations (seconds) and sends itself SIGINT 0.5 s into it.
 SCRIPT = textwrap.dedent("""
@@ -52,3 +56,18 @@ def test_other_statuses_exit_normally(status):
             f"atexit.register(print, 'teardown ran')\nexit_with({status})")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert done.returncode == status and done.stdout == "teardown ran\n"
+
+
+def test_warnings_show_on_one_line_and_a_text_asked_for_once_comes_once(capsys):
+    def warn(text):  # one place that warns ...
+        warnings.warn(UserWarning(text))
+
+    with one_line_warnings(once=(UserWarning,)):
+        warn("open mesh")
+        with warnings.catch_warnings():  # a change of the filters between: the filters' "once" forgets
+            warnings.simplefilter("ignore", DeprecationWarning)
+        warnings.warn(UserWarning("open mesh"))  # ... and another: the same text
+        warn("another mesh")
+        warnings.warn(RuntimeWarning("open mesh"))  # not asked for once
+    assert capsys.readouterr().err.splitlines() == ["warning: open mesh", "warning: another mesh",
+                                                    "warning: open mesh"]

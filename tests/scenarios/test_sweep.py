@@ -15,6 +15,7 @@ import signal
 import subprocess
 import sys
 import time
+import warnings
 from collections import Counter
 from pathlib import Path
 
@@ -383,3 +384,17 @@ def test_a_worker_drops_its_compiled_programs_past_a_share_of_the_kernels_map_li
     monkeypatch.setattr(scenarios.episode, "run_episode", lambda *a, **k: 1 / 0)
     seconds, error = run_one(tiny(0), str(tmp_path / "one"), ("mcap",))
     assert "division by zero" in error and released == [True]  # after a failed episode too
+
+
+def test_a_worker_does_not_repeat_the_mesh_warnings_the_sweeps_check_showed(monkeypatch, tmp_path):
+    from scenarios.mesh_check import MeshWarning
+
+    def episode(*args, **kwargs):
+        warnings.warn(MeshWarning("mesh 'part.stl' is open"))
+        warnings.warn(UserWarning("something else"))
+
+    monkeypatch.setattr(scenarios.episode, "run_episode", episode)
+    with warnings.catch_warnings(record=True) as shown:
+        warnings.simplefilter("always")
+        assert run_one(tiny(0), str(tmp_path / "one"), ("mcap",))[1] is None
+    assert [str(w.message) for w in shown] == ["something else"]
