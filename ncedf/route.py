@@ -46,6 +46,11 @@ over arc lengths, checked against the convex model of the static obstacles
   try with goal states lifted clear (:class:`GoalLift`): among obstacles a body
   refined onto the goal mostly lies in one, and climbing its soft clearance
   in the tip's null space finds the few clear ways to the goal.
+* where that roadmap holds none either (the goal states in pockets of their
+  own: a goal behind a pillar, whose nearest free states are all blocked from
+  it), a third: a tree of short branches grown from the goal states until one
+  links to the start's component of the roadmap (:class:`Bridge`,
+  :func:`bridged_path`).
 
 The route is the path's states, ``path_step`` apart in every arc length. The
 controller executes them (``ncedf.recovery``): each step's move along
@@ -66,7 +71,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import dijkstra
+from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
 from ncedf.convex import Polytopes
@@ -97,6 +102,22 @@ class GoalLift:
 
 
 @dataclasses.dataclass(frozen=True)
+class Bridge:
+    """The roadmap's third try (:func:`plan_route`): a tree grown from the goal states, ``rounds`` rounds
+    of ``batch`` branches, each from the tree's state nearest a target (a free state, or a fresh random
+    one, half and half) ``step`` m towards it (its largest arc change), kept where the branch is clear;
+    it stops once a new state has a clear edge to one of its ``links`` nearest free states."""
+
+    rounds: int = 200
+    batch: int = 80
+    step: float = 0.03
+    links: int = 3
+
+    def __post_init__(self):
+        check_fields(self, integers=("rounds", "batch", "links"), positive=("step",))
+
+
+@dataclasses.dataclass(frozen=True)
 class RouteConfig:
     """Settings of :func:`plan_route` (module docstring).
 
@@ -123,6 +144,8 @@ class RouteConfig:
         checked after the first search, as if all were checked first).
       lift: the goal states of the second try, where the first finds no route (:class:`GoalLift`, or
         its fields as a dict).
+      bridge: the third try's tree from the goal states, where the second finds no route either
+        (:class:`Bridge`, or its fields as a dict).
     """
 
     samples: int = 5000
@@ -144,9 +167,11 @@ class RouteConfig:
     path_step: float = 0.002
     lazy_rounds: int = 50
     lift: GoalLift = GoalLift()
+    bridge: Bridge = Bridge()
 
     def __post_init__(self):
         nested(self, "lift", GoalLift)
+        nested(self, "bridge", Bridge)
         check_fields(self, integers=("samples", "local_samples", "neighbours", "goal_candidates", "goal_iterations",
                                      "lazy_rounds", "retract_steps"),
                      positive=("local_radius", "check_step", "node_clearance", "edge_clearance", "goal_damping",
@@ -289,6 +314,45 @@ def retraction_chains(targets: np.ndarray, goal: np.ndarray, approach: np.ndarra
     return np.concatenate(chain)
 
 
+def bridge(goals: np.ndarray, free: np.ndarray, spec: RobotSpec, polytopes: Polytopes, config: RouteConfig,
+           key) -> tuple[int, np.ndarray]:
+    """A chain from one of the states ``free`` (F, M, 3) to a goal state of ``goals`` (G, M, 3), every
+    segment clear (``edge_clearance``): (that free state's index, the (C, M, 3) states after it). A tree
+    grows from the goal states (:class:`Bridge`) until a new state has a clear edge to a free state; the
+    chain is the new state and its branches back to the goal state they grew from. (-1, none) where no
+    round links. Where a goal state's nearest free states are all blocked from it (a goal behind a
+    pillar), short branches find the few ways between."""
+    grow = config.bridge
+    if len(goals) == 0 or len(free) == 0:
+        return -1, goals[:0]
+    tree, parent = np.asarray(goals, np.float32), np.full(len(goals), -1)
+    flat_free = cKDTree(free.reshape(len(free), -1))
+    for round_ in range(grow.rounds):
+        keys = jax.random.split(jax.random.fold_in(key, round_), 2)
+        fresh = np.asarray(sample_arc_lengths(keys[0], spec, (grow.batch // 2, spec.n_links)), np.float32)
+        picked = np.asarray(jax.random.randint(keys[1], (grow.batch - grow.batch // 2,), 0, len(free)))
+        targets = np.concatenate([free[picked], fresh])
+        near = cKDTree(tree.reshape(len(tree), -1)).query(targets.reshape(len(targets), -1))[1]
+        move = targets - tree[near]
+        new = tree[near] + move * np.minimum(1.0, grow.step / np.maximum(np.abs(move).max(axis=(1, 2)), 1e-9))[:, None, None]
+        clear = ((edge_clearances(tree[near], new, spec, polytopes, config.check_step) >= config.edge_clearance)
+                 & (clearances(new, spec, polytopes) >= config.edge_clearance))
+        tree, parent = np.concatenate([tree, new[clear]]), np.concatenate([parent, near[clear]])
+        if not clear.any():
+            continue
+        added = np.arange(len(tree) - clear.sum(), len(tree))
+        nearest = flat_free.query(tree[added].reshape(len(added), -1), min(grow.links, len(free)))[1].reshape(len(added), -1)
+        linked = edge_clearances(np.repeat(tree[added], nearest.shape[1], axis=0), free[nearest.ravel()], spec,
+                                 polytopes, config.check_step) >= config.edge_clearance
+        if linked.any():
+            first = int(np.argmax(linked))
+            chain = [int(added[first // nearest.shape[1]])]
+            while parent[chain[-1]] >= 0:
+                chain.append(int(parent[chain[-1]]))
+            return int(nearest.ravel()[first]), tree[chain]
+    return -1, goals[:0]
+
+
 def segment_parts(a: np.ndarray, b: np.ndarray, step: float) -> np.ndarray:
     """(E,) the parts each segment from a to b (E, M, 3) is cut into, at most ``step`` apart in every arc length."""
     return np.maximum(np.ceil(np.max(np.abs(b - a), axis=(1, 2)) / step).astype(int), 1)
@@ -403,6 +467,28 @@ def roadmap_path(others: np.ndarray, targets: np.ndarray, spec: RobotSpec, polyt
     return None if path is None else nodes[path]
 
 
+def bridged_path(others: np.ndarray, targets: np.ndarray, spec: RobotSpec, polytopes: Polytopes,
+                 config: RouteConfig, checked: dict, key) -> np.ndarray | None:
+    """(P, M, 3) a path from ``others[0]`` over the roadmap of the nodes ``others`` (N, M, 3) to a node that
+    :func:`bridge` links to one of the goal states ``targets`` (G, M, 3), then the bridge; None where it
+    links none. The roadmap's edges all checked (those in ``checked`` known already), so that the bridge
+    links only to the start's component."""
+    i, j, w = roadmap_edges(others, config.neighbours)
+    known = np.array([checked.get(pair, 0) for pair in zip(i.tolist(), j.tolist())], np.int8)
+    unknown = known == 0
+    known[unknown] = np.where(edge_clearances(others[i[unknown]], others[j[unknown]], spec, polytopes,
+                                              config.check_step) >= config.edge_clearance, 1, -1)
+    clear = known == 1
+    graph = coo_matrix((w[clear], (i[clear], j[clear])), shape=(len(others), len(others)))
+    component = connected_components(graph, directed=False)[1]
+    reached = np.flatnonzero(component == component[0])
+    end, chain = bridge(targets, others[reached], spec, polytopes, config, key)
+    if end < 0:
+        return None
+    path = shortest_path(len(others), i[clear], j[clear], w[clear], reached[[end]])
+    return np.concatenate([others[path], chain])
+
+
 def plan_route(spec: RobotSpec, polytopes: Polytopes, start, goal, key, config: RouteConfig = RouteConfig(),
                approach=None, aligned_only: bool = False) -> np.ndarray | None:
     """(S, M, 3) the states of a route from the state ``start`` (M, 3) m to one whose tip reaches ``goal`` (3,) m,
@@ -429,8 +515,10 @@ def plan_route(spec: RobotSpec, polytopes: Polytopes, start, goal, key, config: 
     checked = {}  # the second try's nodes begin with the first's: their edges are checked once
     path = roadmap_path(others, targets, spec, polytopes, config, checked)
     if path is None and not aligned_only:  # the second try: goal states lifted clear of the obstacles
-        lifted = goal_states(free, goal, spec, polytopes, config, lifted=True)
-        path = roadmap_path(others, np.concatenate([targets, lifted]), spec, polytopes, config, checked)
+        targets = np.concatenate([targets, goal_states(free, goal, spec, polytopes, config, lifted=True)])
+        path = roadmap_path(others, targets, spec, polytopes, config, checked)
+    if path is None and not aligned_only:  # the third: a tree from the goal states to the start's component
+        path = bridged_path(others, targets, spec, polytopes, config, checked, jax.random.fold_in(key, 2))
     if path is None:
         return None
     path = shortcut(path, spec, polytopes, config)

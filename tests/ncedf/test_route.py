@@ -19,8 +19,8 @@ from ncedf.recovery import RouteRecovery, RouteState
 from ncedf.robot import (RobotSpec, config_to_arc_lengths, end_effector_pose, forward_kinematics, sample_arc_lengths,
                          validate_state)
 from ncedf.safety import SafetyFilter
-from ncedf.route import (GoalLift, RouteConfig, around, between, clearances, ends, goal_states, lazy_shortest_path,
-                         plan_route, roadmap_edges, shortest_path, tips)
+from ncedf.route import (GoalLift, RouteConfig, around, between, bridge, clearances, ends, goal_states,
+                         lazy_shortest_path, plan_route, roadmap_edges, shortest_path, tips)
 from ncedf.shapes import make_shape
 from scenarios.observe import make_observer
 from scenarios.truth import true_distances_batch
@@ -215,6 +215,41 @@ def test_no_second_try_where_the_first_plans_a_route_or_for_a_pose(polytopes, mo
     assert plan_route(SPEC, polytopes, START, np.asarray(BAR.centre), jax.random.PRNGKey(0), ROUTE,
                       np.array([1.0, 0.0, 0.0]), aligned_only=True) is None
     assert lifted and not any(lifted)
+
+
+def test_a_bridge_is_a_chain_of_short_clear_branches_from_a_free_state_to_a_goal_state(polytopes):
+    """The bridge's tree, linked only to free states whose tips are over 1.5 m from the goal (none of the goal
+    states' neighbours): the chain from its free state to a goal state moves no arc length by more than the
+    bridge's step between states, every state checked along it is clear of the bar by the exact distance,
+    and it ends on a goal state; with no goal state, no chain."""
+    free = _free(polytopes, ROUTE)
+    goals = goal_states(free, GOAL, SPEC, polytopes, ROUTE)
+    far = free[np.linalg.norm(tips(free, SPEC) - GOAL, axis=1) > 1.5]
+    end, chain = bridge(goals, far, SPEC, polytopes, ROUTE, jax.random.PRNGKey(2))
+    assert len(goals) and end >= 0 and len(chain) >= 2
+    assert any(np.array_equal(chain[-1], g) for g in goals)
+    assert np.max(np.abs(np.diff(chain, axis=0))) <= ROUTE.bridge.step + 1e-6
+    whole = np.concatenate([far[end][None], chain])
+    inner, _ = between(whole[:-1], whole[1:], ROUTE.check_step)
+    assert _exact(np.concatenate([whole, inner])).min() > 0.0
+    assert bridge(goals[:0], far, SPEC, polytopes, ROUTE, jax.random.PRNGKey(2))[0] == -1
+
+
+def test_where_neither_search_finds_a_route_the_bridge_gives_one(polytopes, monkeypatch):
+    """plan_route's third try: with the two searches' routes taken away, the route runs over the roadmap to
+    the state the bridge links, then along the bridge to a goal state, clear of the bar all the way by the
+    exact distance; a goal inside the bar (no goal state) has none."""
+    bridged, kept = [], bridge
+    monkeypatch.setattr(route_module, "roadmap_path", lambda *args: None)
+    monkeypatch.setattr(route_module, "bridge", lambda *args: bridged.append(kept(*args)) or bridged[-1])
+    route = plan_route(SPEC, polytopes, START, GOAL, jax.random.PRNGKey(0), ROUTE)
+    assert route is not None and len(bridged) == 1
+    np.testing.assert_array_equal(route[0], START)
+    np.testing.assert_array_equal(route[-1], bridged[0][1][-1])
+    assert np.max(np.abs(np.diff(route, axis=0))) <= ROUTE.path_step + 1e-6
+    assert np.linalg.norm(tips(route[-1:], SPEC)[0] - GOAL) <= ROUTE.goal_tolerance
+    assert _exact(route).min() > 0.0
+    assert plan_route(SPEC, polytopes, START, np.asarray(BAR.centre), jax.random.PRNGKey(0), ROUTE) is None
 
 
 def _roadmap(polytopes):
