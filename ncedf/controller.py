@@ -236,8 +236,8 @@ class Controller:
     def prepare(self, state: ControllerState, arc, goal, obstacle_points=None) -> None:
         """Compile the route's programs where the next :meth:`step` may plan this controller's first
         route, so that a timed step holds the plan and not its compilation: a plan to where the
-        tip already is, and the check of a route's moves (the route's second try,
-        ``ncedf.route.GoalLift``, compiles where an episode first needs it). Nothing otherwise;
+        tip already is, and the check of a route's moves (the route's second and third tries,
+        ``ncedf.route.GoalLift`` and ``Bridge``, compile where an episode first needs them). Nothing otherwise;
         a loop that calls it before each timed step pays for the route only where it plans one."""
         recovery = self.config.recovery
         if recovery is None or self._route_ready or not plan_due(recovery, state.route, int(state.mppi.stalled) + 1):

@@ -108,7 +108,7 @@ class Bridge:
     one, half and half) ``step`` m towards it (its largest arc change), kept where the branch is clear;
     it stops once a new state has a clear edge to one of its ``links`` nearest free states."""
 
-    rounds: int = 200
+    rounds: int = 1000
     batch: int = 80
     step: float = 0.03
     links: int = 3
