@@ -334,19 +334,21 @@ def bridge(goals: np.ndarray, free: np.ndarray, spec: RobotSpec, polytopes: Poly
         targets = np.concatenate([free[picked], fresh])
         near = cKDTree(tree.reshape(len(tree), -1)).query(targets.reshape(len(targets), -1))[1]
         move = targets - tree[near]
-        new = tree[near] + move * np.minimum(1.0, grow.step / np.maximum(np.abs(move).max(axis=(1, 2)), 1e-9))[:, None, None]
+        scale = np.minimum(1.0, grow.step / np.maximum(np.abs(move).max(axis=(1, 2)), 1e-9))
+        new = tree[near] + move * scale[:, None, None]
         clear = ((edge_clearances(tree[near], new, spec, polytopes, config.check_step) >= config.edge_clearance)
                  & (clearances(new, spec, polytopes) >= config.edge_clearance))
         tree, parent = np.concatenate([tree, new[clear]]), np.concatenate([parent, near[clear]])
         if not clear.any():
             continue
         added = np.arange(len(tree) - clear.sum(), len(tree))
-        nearest = flat_free.query(tree[added].reshape(len(added), -1), min(grow.links, len(free)))[1].reshape(len(added), -1)
-        linked = edge_clearances(np.repeat(tree[added], nearest.shape[1], axis=0), free[nearest.ravel()], spec,
-                                 polytopes, config.check_step) >= config.edge_clearance
+        k = min(grow.links, len(free))
+        nearest = flat_free.query(tree[added].reshape(len(added), -1), k)[1].reshape(len(added), k)
+        linked = edge_clearances(np.repeat(tree[added], k, axis=0), free[nearest.ravel()], spec, polytopes,
+                                 config.check_step) >= config.edge_clearance
         if linked.any():
             first = int(np.argmax(linked))
-            chain = [int(added[first // nearest.shape[1]])]
+            chain = [int(added[first // k])]
             while parent[chain[-1]] >= 0:
                 chain.append(int(parent[chain[-1]]))
             return int(nearest.ravel()[first]), tree[chain]
@@ -517,7 +519,7 @@ def plan_route(spec: RobotSpec, polytopes: Polytopes, start, goal, key, config: 
     if path is None and not aligned_only:  # the second try: goal states lifted clear of the obstacles
         targets = np.concatenate([targets, goal_states(free, goal, spec, polytopes, config, lifted=True)])
         path = roadmap_path(others, targets, spec, polytopes, config, checked)
-    if path is None and not aligned_only:  # the third: a tree from the goal states to the start's component
+    if path is None and not aligned_only and len(targets):  # the third: a tree from the goal states
         path = bridged_path(others, targets, spec, polytopes, config, checked, jax.random.fold_in(key, 2))
     if path is None:
         return None

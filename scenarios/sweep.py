@@ -271,7 +271,8 @@ def release_programs(share: float | None = None) -> bool:
 def run_one(settings: EpisodeSettings, stem: str, formats: Sequence[str]) -> tuple[float, str | None]:
     """Run one episode into `stem` (overwriting) -> (wall seconds, None or the error on one line); then
     :func:`release_programs`, as a worker runs many. An obstacle file's mesh warnings are not repeated:
-    the sweep's check (`check_configurations`) showed them before the workers started."""
+    the sweep's check (`check_configurations`, unless ``run_sweep(check=False)``) showed them before the
+    workers started."""
     from scenarios.episode import run_episode
     from scenarios.mesh_check import MeshWarning
 

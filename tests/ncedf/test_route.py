@@ -250,6 +250,7 @@ def test_where_neither_search_finds_a_route_the_bridge_gives_one(polytopes, monk
     assert np.linalg.norm(tips(route[-1:], SPEC)[0] - GOAL) <= ROUTE.goal_tolerance
     assert _exact(route).min() > 0.0
     assert plan_route(SPEC, polytopes, START, np.asarray(BAR.centre), jax.random.PRNGKey(0), ROUTE) is None
+    assert len(bridged) == 1  # no goal state inside the bar: no tree to grow, no third try
 
 
 def _roadmap(polytopes):
