@@ -336,16 +336,15 @@ def bridge(goals: np.ndarray, free: np.ndarray, spec: RobotSpec, polytopes: Poly
         move = targets - tree[near]
         scale = np.minimum(1.0, grow.step / np.maximum(np.abs(move).max(axis=(1, 2)), 1e-9))
         new = tree[near] + move * scale[:, None, None]
-        clear = ((edge_clearances(tree[near], new, spec, polytopes, config.check_step) >= config.edge_clearance)
-                 & (clearances(new, spec, polytopes) >= config.edge_clearance))
+        clear = clear_edges(tree[near], new, spec, polytopes, config) & (
+            clearances(new, spec, polytopes) >= config.edge_clearance)
         tree, parent = np.concatenate([tree, new[clear]]), np.concatenate([parent, near[clear]])
         if not clear.any():
             continue
         added = np.arange(len(tree) - clear.sum(), len(tree))
         k = min(grow.links, len(free))
         nearest = flat_free.query(tree[added].reshape(len(added), -1), k)[1].reshape(len(added), k)
-        linked = edge_clearances(np.repeat(tree[added], k, axis=0), free[nearest.ravel()], spec, polytopes,
-                                 config.check_step) >= config.edge_clearance
+        linked = clear_edges(np.repeat(tree[added], k, axis=0), free[nearest.ravel()], spec, polytopes, config)
         if linked.any():
             first = int(np.argmax(linked))
             chain = [int(added[first // k])]
@@ -385,15 +384,19 @@ def edge_clearances(a: np.ndarray, b: np.ndarray, spec: RobotSpec, polytopes: Po
     return clear
 
 
+def clear_edges(a: np.ndarray, b: np.ndarray, spec: RobotSpec, polytopes: Polytopes, config: RouteConfig) -> np.ndarray:
+    """(E,) bool: whether each segment from a to b (E, M, 3) keeps ``edge_clearance`` (:func:`edge_clearances`,
+    checked ``check_step`` apart)."""
+    return edge_clearances(a, b, spec, polytopes, config.check_step) >= config.edge_clearance
+
+
 def shortcut(path: np.ndarray, spec: RobotSpec, polytopes: Polytopes, config: RouteConfig) -> np.ndarray:
     """(Q, M, 3) the roadmap path (P, M, 3) with its detours cut: from each kept node, straight to the last
     node whose segment from it is clear (``edge_clearance``); the next node always is (a roadmap edge)."""
     kept = [0]
     while kept[-1] < len(path) - 1:
         later = np.arange(len(path) - 1, kept[-1], -1)
-        clear = edge_clearances(np.repeat(path[kept[-1]][None], len(later), axis=0), path[later], spec, polytopes,
-                                config.check_step)
-        ok = clear >= config.edge_clearance
+        ok = clear_edges(np.repeat(path[kept[-1]][None], len(later), axis=0), path[later], spec, polytopes, config)
         kept.append(int(later[np.argmax(ok)]) if ok.any() else kept[-1] + 1)
     return path[kept]
 
@@ -451,8 +454,7 @@ def lazy_shortest_path(nodes: np.ndarray, i: np.ndarray, j: np.ndarray, w: np.nd
         if np.all(clear[edges] == 1):
             return path
         unknown = edges[clear[edges] == 0] if round_ < config.lazy_rounds else np.flatnonzero(clear == 0)
-        clear[unknown] = np.where(edge_clearances(nodes[i[unknown]], nodes[j[unknown]], spec, polytopes,
-                                                  config.check_step) >= config.edge_clearance, 1, -1)
+        clear[unknown] = np.where(clear_edges(nodes[i[unknown]], nodes[j[unknown]], spec, polytopes, config), 1, -1)
         checked.update(zip(zip(i[unknown].tolist(), j[unknown].tolist()), clear[unknown].tolist()))
 
 
@@ -477,10 +479,8 @@ def bridged_path(others: np.ndarray, targets: np.ndarray, spec: RobotSpec, polyt
     links only to the start's component."""
     i, j, w = roadmap_edges(others, config.neighbours)
     known = np.array([checked.get(pair, 0) for pair in zip(i.tolist(), j.tolist())], np.int8)
-    unknown = known == 0
-    known[unknown] = np.where(edge_clearances(others[i[unknown]], others[j[unknown]], spec, polytopes,
-                                              config.check_step) >= config.edge_clearance, 1, -1)
-    clear = known == 1
+    clear, unknown = known == 1, known == 0
+    clear[unknown] = clear_edges(others[i[unknown]], others[j[unknown]], spec, polytopes, config)
     graph = coo_matrix((w[clear], (i[clear], j[clear])), shape=(len(others), len(others)))
     component = connected_components(graph, directed=False)[1]
     reached = np.flatnonzero(component == component[0])
