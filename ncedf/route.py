@@ -50,7 +50,8 @@ over arc lengths, checked against the convex model of the static obstacles
   own: a goal behind a pillar, whose nearest free states are all blocked from
   it), a third: a tree of short branches grown from the goal states until one
   links to the start's component of the roadmap (:class:`Bridge`,
-  :func:`bridged_path`).
+  :func:`bridged_path`). A pose goal gets the first and the third, from its
+  aligned goal states (a lifted state keeps the tip on the goal, not its axis).
 
 The route is the path's states, ``path_step`` apart in every arc length. The
 controller executes them (``ncedf.recovery``): each step's move along
@@ -519,7 +520,7 @@ def plan_route(spec: RobotSpec, polytopes: Polytopes, start, goal, key, config: 
     if path is None and not aligned_only:  # the second try: goal states lifted clear of the obstacles
         targets = np.concatenate([targets, goal_states(free, goal, spec, polytopes, config, lifted=True)])
         path = roadmap_path(others, targets, spec, polytopes, config, checked)
-    if path is None and not aligned_only and len(targets):  # the third: a tree from the goal states
+    if path is None and len(targets):  # the third: a tree from the goal states (a pose's: the aligned ones)
         path = bridged_path(others, targets, spec, polytopes, config, checked, jax.random.fold_in(key, 2))
     if path is None:
         return None

@@ -253,6 +253,24 @@ def test_where_neither_search_finds_a_route_the_bridge_gives_one(polytopes, monk
     assert len(bridged) == 1  # no goal state inside the bar: no tree to grow, no third try
 
 
+def test_a_pose_goals_third_try_grows_from_its_aligned_goal_states(polytopes, monkeypatch):
+    """A pose goal (link 1 bent by 1 rad towards +x, link 2 straight: its tip beyond the bar) with the first
+    search's route taken away: the bridge's route ends with the tip on the pose's position and its axis along
+    the pose's, clear of the bar all the way by the exact distance."""
+    monkeypatch.setattr(route_module, "roadmap_path", lambda *args: None)
+    arc = np.stack([np.asarray(config_to_arc_lengths(1.0, 0.0, SPEC.link(0))), np.full(3, 2.0)])
+    pose = np.asarray(end_effector_pose(jnp.asarray(arc), SPEC), np.float64)
+    route = plan_route(SPEC, polytopes, START, pose[:3, 3], jax.random.PRNGKey(0), ROUTE, pose[:3, 2],
+                       aligned_only=True)
+    assert route is not None
+    np.testing.assert_array_equal(route[0], START)
+    axis, tip = ends(route[-1:], SPEC)
+    assert np.linalg.norm(tip[0] - pose[:3, 3]) <= ROUTE.goal_tolerance
+    assert ROUTE.approach_weight * np.linalg.norm(axis[0] - pose[:3, 2]) <= ROUTE.goal_tolerance
+    assert np.max(np.abs(np.diff(route, axis=0))) <= ROUTE.path_step + 1e-6
+    assert _exact(route).min() > 0.0
+
+
 def _roadmap(polytopes):
     """A roadmap as plan_route's: the start, free random states and goal states; each node's 8 nearest."""
     drawn = np.asarray(sample_arc_lengths(jax.random.PRNGKey(5), SPEC, (400, SPEC.n_links)), np.float32)
