@@ -12,8 +12,7 @@ and the commands the tests start as subprocesses inherit these.
 The session's processes (the two workers and the commands they start) also share a persistent
 JAX compilation cache in a temporary folder, removed at the end: a program one of them compiled
 is loaded, not compiled again, by the others. A loaded program is the compiled one, so results
-are unchanged. Every process of the session reads and writes it under JAX's file lock, as the
-commands do (``ncedf.compile_cache.use_folder``). A cache folder
+are unchanged. A cache folder
 already in ``JAX_COMPILATION_CACHE_DIR`` is used as it is and kept.
 """
 
@@ -35,8 +34,3 @@ if "JAX_COMPILATION_CACHE_DIR" not in os.environ:  # the first process of the se
     # Every program, however quick to compile; and no XLA autotuning caches, whose folder would enter the keys.
     os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = "0"
     os.environ["JAX_PERSISTENT_CACHE_ENABLE_XLA_CACHES"] = "none"
-
-from ncedf.compile_cache import MAX_BYTES, use_folder  # noqa: E402 (jax reads the variables above on import)
-
-os.environ["JAX_COMPILATION_CACHE_MAX_SIZE"] = str(MAX_BYTES)  # read by the workers' jax; this one's imported
-use_folder(os.environ["JAX_COMPILATION_CACHE_DIR"])

@@ -20,8 +20,9 @@ over arc lengths, checked against the convex model of the static obstacles
 * with an approach direction (the way into the goal, where the goal lies in an
   opening: ``ncedf.guide.approach``), aligned goal states too: the same
   candidates refined on the tip's position and its approach axis
-  (``approach_weight``; the weighted axis error too within ``goal_tolerance``), and from each a retraction chain, its tip drawn back
-  along the direction ``retract_step`` at a time for ``retract_steps`` steps
+  (``approach_weight``; the weighted axis error too within ``goal_tolerance``), and from
+  each a retraction chain, its tip drawn back along the direction ``retract_step`` at a
+  time for ``retract_steps`` steps
   (each state refined from the one before), the states kept where their
   clearance is ``edge_clearance``: a random state almost never threads an
   opening, and the chains lead out of it;
@@ -145,7 +146,7 @@ class RouteConfig:
         checked after the first search, as if all were checked first).
       lift: the goal states of the second try, where the first finds no route (:class:`GoalLift`, or
         its fields as a dict).
-      bridge: the third try's tree from the goal states, where the second finds no route either
+      bridge: the third try's tree from the goal states, where the earlier tries find no route
         (:class:`Bridge`, or its fields as a dict).
     """
 

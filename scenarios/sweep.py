@@ -233,7 +233,7 @@ def start_jax(cores: int, cache_dir: str | None = None) -> None:
     if cache_dir is not None:
         from ncedf.compile_cache import use_folder
 
-        use_folder(cache_dir)  # shared with the other workers, entries under a file lock
+        use_folder(cache_dir)  # shared with the other workers
 
 
 def _init_local_worker(cores: int, cache_dir: str) -> None:

@@ -1,8 +1,5 @@
-"""The persistent compilation cache: where it lives, the switch that turns it off, that a compiled
-program lands in it and is read back by a fresh compilation, and that its entries are written under
-JAX's file lock, also into a folder that a cache without the lock wrote."""
-
-import warnings
+"""The persistent compilation cache: where it lives, the switch that turns it off (JAX's own folder
+too), and that a compiled program lands in it and is read back by a fresh compilation."""
 
 import jax
 import jax.numpy as jnp
@@ -10,10 +7,10 @@ import pytest
 
 from jax.experimental.compilation_cache.compilation_cache import reset_cache
 
-from ncedf.compile_cache import ENTRY_SUFFIX, ENV_SWITCH, USED_SUFFIX, cache_folder, enable_compile_cache, use_folder
+from ncedf.compile_cache import ENV_SWITCH, cache_folder, enable_compile_cache, use_folder
 
 OPTIONS = ("jax_compilation_cache_dir", "jax_persistent_cache_min_compile_time_secs",
-           "jax_persistent_cache_enable_xla_caches", "jax_compilation_cache_max_size")
+           "jax_persistent_cache_enable_xla_caches", "jax_enable_compilation_cache")
 
 
 @pytest.fixture
@@ -38,11 +35,15 @@ def test_the_folder_is_under_the_projects_cache_and_names_jax_and_the_platform(t
 @pytest.mark.parametrize("value", ["0", "off", "False"])
 def test_the_environment_or_the_flag_turns_it_off(tmp_path, monkeypatch, restored_config, value):
     monkeypatch.setenv("NCEDF_CACHE", str(tmp_path))
+    use_folder(tmp_path / "jax")  # a folder JAX's own variable names is turned off too
+    reset_cache()
     before = jax.config.jax_compilation_cache_dir
     assert enable_compile_cache(on=False) is None
     monkeypatch.setenv(ENV_SWITCH, value)
     assert enable_compile_cache() is None
     assert jax.config.jax_compilation_cache_dir == before and not (tmp_path / "xla").exists()
+    jax.jit(lambda x: jnp.tan(x) * len(value) - 0.375)(jnp.arange(3.0))  # a program no other test compiles
+    assert not list((tmp_path / "jax").glob("*"))
 
 
 def test_a_compiled_program_is_written_and_read_back(tmp_path, monkeypatch, restored_config):
@@ -57,7 +58,7 @@ def test_a_compiled_program_is_written_and_read_back(tmp_path, monkeypatch, rest
 
     x = jnp.arange(7, dtype=jnp.float32)
     expected = jax.jit(program)(x)
-    written = sorted(folder.glob(f"jit_program-*{ENTRY_SUFFIX}"))
+    written = sorted(folder.glob("jit_program-*"))
     assert len(written) == 1, "the program was not written to the cache"
     stamp = written[0].stat().st_mtime_ns
     hits = []
@@ -72,24 +73,4 @@ def test_a_compiled_program_is_written_and_read_back(tmp_path, monkeypatch, rest
     finally:
         jax.monitoring.unregister_event_listener(listen)
     assert "/jax/compilation_cache/cache_hits" in hits
-    assert sorted(folder.glob(f"jit_program-*{ENTRY_SUFFIX}")) == written and written[0].stat().st_mtime_ns == stamp
-
-
-def test_entries_are_written_under_the_lock_also_beside_ones_a_cache_without_it_wrote(tmp_path, restored_config):
-    """A folder holding an entry without the file of its last use (as a cache without a size limit writes
-    them): a new program is written with its own, under JAX's lock file, without a warning (JAX's eviction
-    reads every entry's last use before it writes: without the backfill the write fails), the old one kept."""
-    old = tmp_path / f"jit_old-0123{ENTRY_SUFFIX}"
-    old.write_bytes(b"an entry of an earlier run")
-    use_folder(tmp_path)
-    reset_cache()
-
-    def program(x):
-        return jnp.cos(x) * 1.75 - jnp.cumprod(x)  # a computation no other test compiles
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")  # JAX warns where it cannot write an entry
-        jax.jit(program)(jnp.arange(5, dtype=jnp.float32))
-    new = list(tmp_path.glob(f"jit_program-*{ENTRY_SUFFIX}"))
-    assert len(new) == 1 and new[0].with_name(new[0].name.removesuffix(ENTRY_SUFFIX) + USED_SUFFIX).exists()
-    assert old.exists() and (tmp_path / f"jit_old-0123{USED_SUFFIX}").exists() and (tmp_path / ".lockfile").exists()
+    assert sorted(folder.glob("jit_program-*")) == written and written[0].stat().st_mtime_ns == stamp
