@@ -60,18 +60,20 @@ def add_cache_option(parser) -> None:
 
 
 def use_folder(folder) -> None:
-    """Point JAX's persistent compilation cache at ``folder``: every program, however quick to compile."""
+    """Point JAX's persistent compilation cache at ``folder``: every program, however quick to compile.
+    JAX decides whether to use a cache at its first compilation; a process that compiled before is
+    made to decide again."""
     jax.config.update("jax_compilation_cache_dir", str(folder))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     # Else JAX also points XLA's GPU autotuning cache into the folder, which puts the folder's path into
     # every program's key (a copied cache would never hit).
     jax.config.update("jax_persistent_cache_enable_xla_caches", "none")
+    reset_cache()
 
 
 def enable_compile_cache(on: bool = True) -> Path | None:
     """Point JAX's persistent compilation cache at :func:`cache_folder` (:func:`use_folder`), or turn it
-    off where ``on`` is False or the environment turns it off. JAX decides whether to use a cache at
-    its first compilation; a process that compiled before is made to decide again. Returns the folder,
+    off (JAX decides again) where ``on`` is False or the environment turns it off. Returns the folder,
     or None."""
     if not (on and enabled()):
         jax.config.update("jax_enable_compilation_cache", False)
@@ -79,5 +81,4 @@ def enable_compile_cache(on: bool = True) -> Path | None:
         return None
     folder = cache_folder()
     use_folder(folder)
-    reset_cache()
     return folder

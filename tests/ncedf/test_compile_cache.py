@@ -36,7 +36,6 @@ def test_the_folder_is_under_the_projects_cache_and_names_jax_and_the_platform(t
 def test_the_environment_or_the_flag_turns_it_off(tmp_path, monkeypatch, restored_config, value):
     monkeypatch.setenv("NCEDF_CACHE", str(tmp_path))
     use_folder(tmp_path / "jax")  # a folder JAX's own variable names is turned off too
-    reset_cache()
     before = jax.config.jax_compilation_cache_dir
     assert enable_compile_cache(on=False) is None
     monkeypatch.setenv(ENV_SWITCH, value)

@@ -253,22 +253,36 @@ def test_where_neither_search_finds_a_route_the_bridge_gives_one(polytopes, monk
     assert len(bridged) == 1  # no goal state inside the bar: no tree to grow, no third try
 
 
+#: Link 1 bent by 1 rad towards +x, link 2 straight: its tip beyond the bar, clear of it.
+BENT = np.stack([np.asarray(config_to_arc_lengths(1.0, 0.0, SPEC.link(0))), np.full(3, 2.0)])
+
+
+def _bent_pose() -> np.ndarray:
+    """(4, 4) the end-effector pose of BENT, a pose goal."""
+    return np.asarray(end_effector_pose(jnp.asarray(BENT), SPEC), np.float64)
+
+
+def _assert_ends_on(route: np.ndarray, pose: np.ndarray) -> None:
+    """The route's last state has its tip on the pose's position and its axis along the pose's (within the
+    route's tolerances), and every state is clear of the bar by the exact distance."""
+    axis, tip = ends(route[-1:], SPEC)
+    assert np.linalg.norm(tip[0] - pose[:3, 3]) <= ROUTE.goal_tolerance
+    assert ROUTE.approach_weight * np.linalg.norm(axis[0] - pose[:3, 2]) <= ROUTE.goal_tolerance
+    assert _exact(route).min() > 0.0
+
+
 def test_a_pose_goals_third_try_grows_from_its_aligned_goal_states(polytopes, monkeypatch):
     """A pose goal (link 1 bent by 1 rad towards +x, link 2 straight: its tip beyond the bar) with the first
     search's route taken away: the bridge's route ends with the tip on the pose's position and its axis along
     the pose's, clear of the bar all the way by the exact distance."""
     monkeypatch.setattr(route_module, "roadmap_path", lambda *args: None)
-    arc = np.stack([np.asarray(config_to_arc_lengths(1.0, 0.0, SPEC.link(0))), np.full(3, 2.0)])
-    pose = np.asarray(end_effector_pose(jnp.asarray(arc), SPEC), np.float64)
+    pose = _bent_pose()
     route = plan_route(SPEC, polytopes, START, pose[:3, 3], jax.random.PRNGKey(0), ROUTE, pose[:3, 2],
                        aligned_only=True)
     assert route is not None
     np.testing.assert_array_equal(route[0], START)
-    axis, tip = ends(route[-1:], SPEC)
-    assert np.linalg.norm(tip[0] - pose[:3, 3]) <= ROUTE.goal_tolerance
-    assert ROUTE.approach_weight * np.linalg.norm(axis[0] - pose[:3, 2]) <= ROUTE.goal_tolerance
+    _assert_ends_on(route, pose)
     assert np.max(np.abs(np.diff(route, axis=0))) <= ROUTE.path_step + 1e-6
-    assert _exact(route).min() > 0.0
 
 
 def _roadmap(polytopes):
@@ -482,16 +496,12 @@ def test_a_pose_goals_route_arrives_along_its_approach_axis(cloud):
     """The pose of link 1 bent by 1 rad towards +x and link 2 straight (its tip beyond the bar, clear
     of it): the route ends with the tip at the pose's position and its axis along the pose's."""
     mppi = _controller()
-    arc = np.stack([np.asarray(config_to_arc_lengths(1.0, 0.0, SPEC.link(0))), np.full(3, 2.0)])
-    pose = np.asarray(end_effector_pose(jnp.asarray(arc), SPEC), np.float64)
-    assert _exact(arc[None])[0] > 0.1
+    assert _exact(BENT[None])[0] > 0.1
+    pose = _bent_pose()
     _, after, _ = mppi.step(_stalled(mppi.init(jax.random.PRNGKey(0)), 50), START, pose, cloud)
     route = after.route.states
     assert after.route.routes == 1 and len(route) >= 2
-    axis, tip = ends(route[-1:], SPEC)
-    assert np.linalg.norm(tip[0] - pose[:3, 3]) <= ROUTE.goal_tolerance
-    assert ROUTE.approach_weight * np.linalg.norm(axis[0] - pose[:3, 2]) <= ROUTE.goal_tolerance
-    assert _exact(route).min() > 0.0
+    _assert_ends_on(route, pose)
 
 
 def test_route_settings_are_validated():
