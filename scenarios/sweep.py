@@ -265,23 +265,38 @@ def release_programs(share: float | None = None) -> bool:
     return True
 
 
+#: The signal that stopped an episode in this worker process, once one has (its recorder caught it).
+_SIGNALLED: list[signal.Signals] = []
+
+
+def _end_worker(signum: signal.Signals) -> None:
+    """End this process by `signum` as if no recorder had caught it."""
+    signal.signal(signum, signal.SIG_DFL)
+    signal.raise_signal(signum)
+
+
 def run_one(settings: EpisodeSettings, stem: str, formats: Sequence[str]) -> tuple[float, str | None]:
     """Run one episode into `stem` (overwriting) -> (wall seconds, None or the error on one line); then
     :func:`release_programs`, as a worker runs many. An obstacle file's mesh warnings are not repeated:
     the sweep's check (`check_configurations`, unless ``run_sweep(check=False)``) showed them before the
-    workers started."""
+    workers started. A worker whose episode a signal stopped ends at its next episode, before writing
+    anything: the pool may already have queued one for it, which the stopping sweep would kill half-written."""
     from scenarios.episode import run_episode
     from scenarios.mesh_check import MeshWarning
 
+    if _SIGNALLED:
+        _end_worker(_SIGNALLED[0])
     start = time.perf_counter()
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", MeshWarning)
-            run_episode(settings, out=stem, formats=tuple(formats), overwrite=True)
+            result = run_episode(settings, out=stem, formats=tuple(formats), overwrite=True)
     except Exception as exc:  # reported by the sweep; the other episodes go on
         return time.perf_counter() - start, one_line(exc)
     finally:
         release_programs()
+    if result.signal:
+        _SIGNALLED.append(signal.Signals[result.signal])
     return time.perf_counter() - start, None
 
 

@@ -18,6 +18,7 @@ import time
 import warnings
 from collections import Counter
 from pathlib import Path
+from types import SimpleNamespace
 
 import pandas as pd
 import pytest
@@ -392,9 +393,46 @@ def test_a_worker_does_not_repeat_the_mesh_warnings_the_sweeps_check_showed(monk
     def episode(*args, **kwargs):
         warnings.warn(MeshWarning("mesh 'part.stl' is open"))
         warnings.warn(UserWarning("something else"))
+        return SimpleNamespace(signal=None)
 
     monkeypatch.setattr(scenarios.episode, "run_episode", episode)
     with warnings.catch_warnings(record=True) as shown:
         warnings.simplefilter("always")
         assert run_one(tiny(0), str(tmp_path / "one"), ("mcap",))[1] is None
     assert [str(w.message) for w in shown] == ["something else"]
+
+
+class _Ended(Exception):
+    pass
+
+
+@pytest.mark.parametrize("signame", ["SIGTERM", "SIGINT"])
+def test_a_worker_whose_episode_a_signal_stopped_starts_no_other(monkeypatch, tmp_path, signame):
+    """The sweep's SIGTERM reaches a worker's recorder, which closes its episode; the pool may have queued
+    the next for it already: the worker must end there, not record an episode the sweep kills half-written."""
+    ran, ended = [], []
+
+    def episode(settings, **kwargs):
+        ran.append(settings.env_seed)
+        return SimpleNamespace(signal=signame if settings.env_seed == 1 else None)
+
+    def end(signum):
+        ended.append(signum)
+        raise _Ended
+
+    monkeypatch.setattr(scenarios.episode, "run_episode", episode)
+    monkeypatch.setattr(scenarios.sweep, "_end_worker", end)
+    monkeypatch.setattr(scenarios.sweep, "_SIGNALLED", [])
+    for env in (0, 1):
+        assert run_one(tiny(env), str(tmp_path / f"e{env}"), ("mcap",))[1] is None
+    with pytest.raises(_Ended):
+        run_one(tiny(2), str(tmp_path / "e2"), ("mcap",))
+    assert ran == [0, 1] and ended == [signal.Signals[signame]]
+
+
+def test_a_worker_ended_by_its_signal_dies_of_it():
+    """:func:`_end_worker` in a process that ignores the signal (as a worker ignores Ctrl-C)."""
+    code = ("import signal; from scenarios.sweep import _end_worker; signal.signal(signal.SIGINT, signal.SIG_IGN); "
+            "_end_worker(signal.SIGINT); print('alive')")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert done.returncode == -signal.SIGINT and "alive" not in done.stdout
