@@ -18,7 +18,7 @@ from pathlib import Path
 if __package__ in (None, ""):  # run as a script: make the repository importable
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from analysis.cli import run_until_stopped  # noqa: E402
+from analysis.cli import output_folder, run_until_stopped  # noqa: E402
 from analysis.load import load, recordings_folder  # noqa: E402
 from analysis.tables import BUILDERS  # noqa: E402
 from recorder import RecorderError  # noqa: E402
@@ -48,13 +48,13 @@ def _main(args) -> int:
     try:
         args.runs = recordings_folder(args.runs)
         rec = load(args.runs)
+        out = output_folder(args.out)
     except RecorderError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     print(f"read {rec.files} recordings under {args.runs} in {rec.seconds:.2f} s "
           f"({len(rec.runs)} runs used)", file=sys.stderr)
     report_problems(rec)
-    out = Path(args.out)
     for name, build in BUILDERS.items():
         table = build(rec)
         if isinstance(table, str):

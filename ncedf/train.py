@@ -22,8 +22,8 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
-import os
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -270,16 +270,18 @@ def _output_problem(stem: Path, overwrite: bool) -> str | None:
     """Why the weights cannot be written to ``stem``.msgpack/.json, checked before training."""
     stem = stem.with_suffix("")
     targets = [stem.with_suffix(".msgpack"), stem.with_suffix(".json")]
-    existing = [str(t) for t in targets if t.exists()]
+    existing = [t for t in targets if t.exists()]
+    if any(not t.is_file() for t in existing):
+        return f"{next(t for t in existing if not t.is_file())} is a folder or another non-file; weights cannot replace it"
     if existing and not overwrite:
         return f"{existing[0]} exists (use --overwrite to replace it)"
     folder = stem.parent
     try:
         folder.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=folder):
+            pass
     except OSError as exc:
-        return f"cannot create the output folder {folder}: {exc.strerror}"
-    if not os.access(folder, os.W_OK):
-        return f"the output folder {folder} is not writable"
+        return f"cannot write to the output folder {folder}: {exc.strerror or exc}"
     return None
 
 

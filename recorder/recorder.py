@@ -42,6 +42,8 @@ def output_paths(out: str | Path, formats=FORMATS) -> dict[str, Path]:
 def check_writable(paths: dict[str, Path], overwrite: bool) -> None:
     """Raise `RecorderError` if an output exists (and not `overwrite`) or its folder cannot be written."""
     for path in paths.values():
+        if path.exists() and not path.is_file():
+            raise RecorderError(f"{path} is a folder or another non-file; a recording cannot replace it")
         if path.exists() and not overwrite:
             raise RecorderError(f"{path} exists; pass overwrite=True (--overwrite) to replace it")
     for folder in {p.parent for p in paths.values()}:

@@ -402,6 +402,21 @@ def test_a_runs_folder_where_there_is_one_is_the_default(tmp_path):
     assert done.returncode == 0 and "read 0 recordings under runs" in done.stderr
 
 
+@pytest.mark.parametrize("command", ["make_tables", "make_figures"])
+def test_an_output_folder_that_cannot_hold_files_is_a_one_line_error(tmp_path, capsys, command):
+    import importlib
+
+    main = importlib.import_module(f"analysis.{command}").main
+    runs = tmp_path / "runs"
+    shutil.copy(ROOT / "results" / "closed_loop" / "cluttered_L7_ours_s0.mcap", runs.mkdir() or runs / "r.mcap")
+    (tmp_path / "taken").write_text("a file of the user's")
+    for out, why in [(tmp_path / "taken", "taken"), ("/proc/tables", "/proc/tables")]:  # /proc: not even as root
+        assert main([str(runs), "--out", str(out)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert err == [err[0]] and err[0].startswith("error: cannot write to the output folder") and why in err[0]
+    assert (tmp_path / "taken").read_text() == "a file of the user's"
+
+
 def test_a_run_of_another_robot_or_scale_is_labelled_by_what_differs():
     from analysis.load import robot_label
 

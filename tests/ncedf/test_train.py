@@ -120,6 +120,19 @@ def test_cli_rejects_bad_values_with_one_line(capsys, tmp_path):
     assert not (tmp_path / "m.msgpack").exists()
 
 
+def test_cli_names_weights_it_cannot_write_before_training(capsys, tmp_path, monkeypatch):
+    """A folder where the weights would go, even with --overwrite, and a folder that refuses files."""
+    (tmp_path / "m.msgpack").mkdir()
+    assert main(["--overwrite", "--out", str(tmp_path / "m")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "m.msgpack is a folder" in err[0]
+    trained = []
+    monkeypatch.setattr("ncedf.train.train_links", lambda *a, **k: trained.append(1))
+    assert main(["--out", "/proc/m"]) == 2  # /proc takes no new files, even as root
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: cannot write to the output folder /proc") and not trained
+
+
 def test_cli_trains_saves_a_loadable_model_and_records_the_run(tmp_path):
     from ncedf.model import load_model
     from recorder import load_run

@@ -121,6 +121,13 @@ def test_existing_output_is_not_overwritten(tmp_path):
     assert load_run(tmp_path / "run.mcap").metrics["goal_distance"].tolist() == [1.0]
 
 
+def test_a_folder_in_an_outputs_place_fails_before_anything_is_opened(tmp_path):
+    (tmp_path / "run.mcap").mkdir()
+    with pytest.raises(RecorderError, match=f"{tmp_path / 'run.mcap'} is a folder"):
+        Recorder(tmp_path / "run", {}, overwrite=True)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run.mcap"]
+
+
 def test_unwritable_folder_fails_before_anything_is_opened(tmp_path):
     blocker = tmp_path / "file"
     blocker.write_text("")
