@@ -8,7 +8,7 @@ which an opening the robot fits through is wider than the holes between the
 samples; a cloud's points are observed as they are. The robot's base is
 the origin, its first tangent +z (it starts straight up, 2 m per link). A goal that no motion
 reaches (beyond the robot's length, inside the obstacle, or too near it for the tip) is warned of.
-An obstacle observed at more than ``MAX_OBSERVED`` points is refused (coordinates are metres: a
+An obstacle observed at more than ``scenarios.observe.MAX_OBSERVED`` points is refused (coordinates are metres: a
 file in millimetres is a million times too large in area).
 
     python -m scenarios.custom --obstacles part.stl --offset 3,0,2 --goal 4,0,4
@@ -30,9 +30,9 @@ from pathlib import Path
 import numpy as np
 
 from scenarios.cli import base_settings, make_parser, run_cli
-from scenarios.episode import (EpisodeSettings, Scene, beyond_reach, make_scene, option_positive, option_vector,
+from scenarios.episode import (EpisodeSettings, Scene, make_scene, option_positive, option_vector,
                                require_fixed_goal, scenario_options)
-from scenarios.observe import surface_count
+from scenarios.observe import MAX_OBSERVED, surface_count
 from scenarios.obstacle_file import load_obstacle
 from scenarios.solids import DENSITY
 from scenarios.world import CloudObstacle, World
@@ -40,9 +40,6 @@ from scenarios.world import CloudObstacle, World
 TOLERANCE = 0.2
 MAX_STEPS = 300
 OPTIONS = ("obstacles", "goal_position", "offset", "density", "tolerance")
-#: The most points a custom world may be observed at: the controller scores every one each step (the
-#: worlds here: hundreds to a few thousand).
-MAX_OBSERVED = 50_000
 
 
 def build(settings: EpisodeSettings) -> Scene:
@@ -84,12 +81,9 @@ def check_observed_count(obstacle, density: float, named: str) -> None:
 
 
 def warn_of_the_goal(scene: Scene, named: str) -> None:
-    """Warn of a goal (``named`` as the user gave it) that no motion reaches: farther from the base than
-    the robot's length, inside the (closed) obstacle, or nearer to it than the tip's radius less the
-    goal tolerance (the tip's end disk would touch it)."""
-    reason = beyond_reach(scene.goal, scene.spec, scene.tolerance)
-    if reason is not None:
-        warnings.warn(f"{reason}: it cannot be reached", stacklevel=3)
+    """Warn of a goal (``named`` as the user gave it) that no motion reaches: inside the (closed)
+    obstacle, or nearer to it than the tip's radius less the goal tolerance (the tip's end disk would
+    touch it); ``make_scene`` warns of one beyond the robot's length."""
     goal = scene.goal[None]
     if scene.world.clouds:
         inside, near = False, float(np.linalg.norm(np.asarray(scene.world.clouds[0].points) - goal, axis=-1).min())

@@ -66,6 +66,7 @@ import re
 import signal
 import sys
 import time
+import warnings
 from typing import Any, Callable, NamedTuple
 
 import flax.serialization
@@ -282,7 +283,7 @@ def make_scene(settings: EpisodeSettings, world, goal, tolerance: float, max_ste
     what it observes (``ncedf.presets.Observation``, both in the robot's units, ``ncedf.units``).
 
     ``settings.max_steps`` overrides ``max_steps``; a (4, 4) goal is a pose goal
-    (judged with ``ANGLE_TOLERANCE``).
+    (judged with ``ANGLE_TOLERANCE``). A goal beyond the robot's reach is warned of.
     """
     goal = np.asarray(goal, dtype=np.float64)
     if goal.shape not in ((3,), (4, 4)) or not np.all(np.isfinite(goal)):
@@ -297,6 +298,9 @@ def make_scene(settings: EpisodeSettings, world, goal, tolerance: float, max_ste
         goal = goal * factor
     observer = make_observer(world, settings.env_seed)
     spec = robot_spec(settings)
+    reason = beyond_reach(goal[:3, 3] if goal.shape == (4, 4) else goal, spec, tolerance)
+    if reason is not None:  # the episode runs on (it ends stuck): a scenario's own goal with a short robot
+        warnings.warn(f"{reason}: it cannot be reached", stacklevel=2)
     dt, u = MPPIConfig.dt, unit(spec)
     observation = observe(observer.observe(0.0) / u, observer.observe(dt) / u, dt, ball_radius=world.margin_extra / u)
     config = preset(settings.controller, to_reference(spec), observation, samples=settings.samples,

@@ -17,6 +17,10 @@ import numpy as np
 from scenarios.mesh_check import triangle_areas
 from scenarios.world import World, WorldError
 
+#: The most points a world may be observed at: the controller scores every one each step (the worlds
+#: here: hundreds to a few thousand).
+MAX_OBSERVED = 50_000
+
 
 def surface_count(area, density: float):
     """The points observed on ``area`` m^2 (a float or an array) at ``density`` per m^2: the area times
@@ -74,18 +78,23 @@ def make_observer(world: World, key) -> Observer:
     if not isinstance(world, World):
         raise WorldError(f"make_observer needs a World, got {type(world).__name__}")
     k_box, k_mesh, k_tri, k_sphere = jax.random.split(_as_key(key), 4)
+    faces = [_box_faces(b.centre, b.size) for b in world.boxes]
+    counts = surface_count(np.concatenate([f[2] for f in faces]) if faces else np.zeros(0), world.density)
+    mesh_areas = [triangle_areas(mesh.triangles) for mesh in world.meshes]
+    total = int(counts.sum()) + sum(int(surface_count(a.sum(), world.density)) for a in mesh_areas) + sum(
+        len(c.points) for c in world.clouds)
+    if total > MAX_OBSERVED:
+        raise WorldError(f"the world would be observed at {total} points at density {world.density:g} per m^2, "
+                         f"more than {MAX_OBSERVED}: lower the density")
     parts = []
     if world.boxes:
-        faces = [_box_faces(b.centre, b.size) for b in world.boxes]
         centres = np.concatenate([f[0] for f in faces])
         half_edges = np.concatenate([f[1] for f in faces])
-        counts = surface_count(np.concatenate([f[2] for f in faces]), world.density)
         face = np.repeat(np.arange(len(counts)), counts)
         st = 2.0 * np.asarray(jax.random.uniform(k_box, (len(face), 2)), np.float64) - 1.0
         parts.append(centres[face] + st[:, :1] * half_edges[face, 0] + st[:, 1:] * half_edges[face, 1])
-    for i, mesh in enumerate(world.meshes):
+    for i, (mesh, areas) in enumerate(zip(world.meshes, mesh_areas)):
         tri = mesh.triangles
-        areas = triangle_areas(tri)
         n = int(surface_count(areas.sum(), world.density))
         k_pick, k_bary = jax.random.split(jax.random.fold_in(k_mesh, i))
         pick = np.asarray(jax.random.choice(k_pick, len(tri), (n,), p=jnp.asarray(areas / areas.sum())))

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import os
 import struct
+import warnings
 
 import numpy as np
 
@@ -29,7 +30,7 @@ def load_obstacle(path, offset=(0.0, 0.0, 0.0)) -> MeshObstacle | CloudObstacle:
     shift = np.asarray(finite_vector(offset, "offset", "load_obstacle"))
     name = os.path.basename(path)
     if not os.path.isfile(path):
-        raise WorldError(f"obstacle file {path!r} does not exist")
+        raise WorldError(f"obstacle file {path!r} " + ("is a folder" if os.path.isdir(path) else "does not exist"))
     ext = os.path.splitext(path)[1].lower()
     _check_declared_faces(path, ext)
     try:
@@ -37,7 +38,9 @@ def load_obstacle(path, offset=(0.0, 0.0, 0.0)) -> MeshObstacle | CloudObstacle:
             points = np.load(path, allow_pickle=False)
             return CloudObstacle(_cloud_array(points, path) + shift, name)
         if ext == ".xyz":
-            points = np.loadtxt(path, dtype=np.float64, ndmin=2, comments="#")
+            with warnings.catch_warnings():  # an empty file: the shape check below says so, on one line
+                warnings.simplefilter("ignore", UserWarning)
+                points = np.loadtxt(path, dtype=np.float64, ndmin=2, comments="#")
             if points.ndim != 2 or points.shape[1] < 3:
                 raise WorldError(f"obstacle file {path!r}: expected x y z per line, got shape {points.shape}")
             return CloudObstacle(_cloud_array(points[:, :3], path) + shift, name)

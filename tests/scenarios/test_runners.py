@@ -22,6 +22,7 @@ from scenarios import charging, cluttered, custom, spheres
 from scenarios import episode as episode_mod
 from scenarios.cli import summary
 from scenarios.episode import Episode, EpisodeResult, EpisodeSettings
+from scenarios.observe import MAX_OBSERVED
 from scenarios.truth import true_min_distance
 from test_world import box_sdf_np
 
@@ -107,7 +108,7 @@ def test_bad_values_exit_2_with_one_line_and_write_nothing(tmp_path, capsys, arg
 def test_custom_runner_names_a_bad_obstacle_file_or_goal(tmp_path, capsys):
     cloud, dense, part = tmp_path / "cloud.npy", tmp_path / "dense.npy", tmp_path / "part_mm.stl"
     np.save(cloud, np.array([[3.0, 0.0, 3.0]]))
-    np.save(dense, np.random.default_rng(0).uniform(2.0, 6.0, (custom.MAX_OBSERVED + 1, 3)))
+    np.save(dense, np.random.default_rng(0).uniform(2.0, 6.0, (MAX_OBSERVED + 1, 3)))
     trimesh.creation.box(extents=(100.0, 100.0, 100.0)).export(part)  # a 10 cm cube in millimetres: 6e4 m^2
     for argv, named in [(["--obstacles", str(tmp_path / "missing.stl"), "--goal", "4,0,4"], "missing.stl"),
                         (["--obstacles", str(cloud), "--goal", "4,0"], "4,0"),
@@ -362,6 +363,14 @@ def test_a_goal_position_inside_a_box_or_out_of_reach_is_refused(goal, message, 
     assert cluttered.main(["--goal", goal, "--out", "unused", "--shape", "exact"]) == 2
     err = capsys.readouterr().err
     assert err.startswith("error: goal") and err.count("\n") == 1
+
+
+def test_a_scenarios_own_goal_beyond_a_short_robots_reach_is_warned_of():
+    with pytest.warns(UserWarning, match=r"beyond the reach of the 1-link robot \(2 m\): it cannot be reached"):
+        Episode(EpisodeSettings("cluttered", 1, 0, shape="exact"))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        Episode(EpisodeSettings("cluttered", 4, 0, shape="exact"))
 
 
 def test_a_goal_position_on_a_box_face_is_accepted():

@@ -15,6 +15,7 @@ compiled once.
 from __future__ import annotations
 
 import math
+import warnings
 
 import jax
 import jax.numpy as jnp
@@ -26,7 +27,7 @@ from ncedf.geometry import robot_signed_distance, robot_surface_points
 from ncedf.robot import RobotSpec, config_to_arc_lengths, sample_arc_lengths
 from scenarios.box_distance import box_sdf, surface_cell_bounds
 from scenarios.judge import judge_step, robot_motion_bound, substep_count
-from scenarios.observe import make_observer
+from scenarios.observe import MAX_OBSERVED, make_observer
 from scenarios.obstacle_file import load_obstacle
 from scenarios.truth import DISTANCE_ERROR_BOUND, true_distances, true_distances_batch, true_min_distance
 from scenarios.world import Box, CloudObstacle, MeshObstacle, MovingSphere, World, WorldError
@@ -299,23 +300,29 @@ def test_load_meshes_and_clouds_from_files(tmp_path):
         np.testing.assert_allclose(np.asarray(cloud.points), points + offset, atol=1e-6, err_msg=name)
 
 
-@pytest.mark.parametrize("name, content", [
-    ("missing.stl", None),
-    ("garbage.stl", b"solid nothing\nthis is not an stl\n"),
-    ("flat.npy", "wrong shape"),
-    ("bad.xyz", b"1 2\n3 4\n"),
-    ("nan.xyz", b"1 2 nan\n"),
-    ("empty.obj", b"# no geometry\n"),
+@pytest.mark.parametrize("name, content, why", [
+    ("missing.stl", None, "does not exist"),
+    ("part.stl", "a folder", "is a folder"),
+    ("garbage.stl", b"solid nothing\nthis is not an stl\n", ""),
+    ("flat.npy", "wrong shape", "shape"),
+    ("bad.xyz", b"1 2\n3 4\n", "x y z per line"),
+    ("nan.xyz", b"1 2 nan\n", "NaN"),
+    ("empty.xyz", b"", "shape"),
+    ("empty.obj", b"# no geometry\n", ""),
 ])
-def test_bad_obstacle_file_gives_one_line_naming_it(tmp_path, name, content):
+def test_bad_obstacle_file_gives_one_line_naming_it(tmp_path, name, content, why):
     path = tmp_path / name
     if content == "wrong shape":
         np.save(path, np.zeros((5, 2)))
+    elif content == "a folder":
+        path.mkdir()
     elif content is not None:
         path.write_bytes(content)
-    with pytest.raises(WorldError) as err:
-        load_obstacle(path)
-    assert name in str(err.value) and "\n" not in str(err.value)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the error is the one line: no warning besides it
+        with pytest.raises(WorldError) as err:
+            load_obstacle(path)
+    assert name in str(err.value) and why in str(err.value) and "\n" not in str(err.value)
 
 
 # ----------------------------------------------------------------------------- observation
@@ -334,6 +341,14 @@ def test_box_observation_follows_density_and_lies_on_the_faces():
         for sign in (-1, 1):
             count = np.sum(on_axis[:, k] & (np.sign(rel[:, k]) == sign) & (on_axis.sum(1) == 1))
             assert count == round(density * area), (k, sign, count)
+
+
+def test_a_density_past_the_observed_points_limit_is_refused_before_drawing():
+    box = Box((1.0, 2.0, 3.0), (1.0, 2.5, 0.4))  # 7.8 m^2 of surface
+    limit = MAX_OBSERVED / 7.8
+    assert len(make_observer(World(boxes=(box,), density=0.99 * limit), 0).observe(0.0)) <= MAX_OBSERVED
+    with pytest.raises(WorldError, match=f"observed at {round(1e9 * 7.8)} points at density 1e\\+09"):
+        make_observer(World(boxes=(box,), density=1e9), 0)  # drawn, 7.8e9 points would take 187 GB
 
 
 def test_sphere_points_move_with_the_sphere_and_keys_repeat():
