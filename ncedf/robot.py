@@ -85,7 +85,8 @@ class RobotSpec:
             raise ValueError(
                 f"radius {thinnest} m is not below the bend radius {self.length / self.max_bend():.4g} m that "
                 f"the arc limits {self.l_min}-{self.l_max} allow a link of length {self.length} (the tube would "
-                "fold into itself); narrow the arc limits or the radius"
+                "fold into itself); narrow the arc limits (the chambers sit at the tube's radius: a thinner tube "
+                "bends as tight)"
             )
 
     @property
