@@ -18,11 +18,12 @@ from pathlib import Path
 if __package__ in (None, ""):  # run as a script: make the repository importable
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from analysis.cli import output_folder, run_until_stopped  # noqa: E402
+from analysis.cli import run_until_stopped  # noqa: E402
 from analysis.load import load, recordings_folder  # noqa: E402
 from analysis.tables import BUILDERS  # noqa: E402
 from recorder import RecorderError  # noqa: E402
 from recorder.cli import OneLineParser, exit_with  # noqa: E402
+from recorder.recorder import check_folder  # noqa: E402
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -48,7 +49,7 @@ def _main(args) -> int:
     try:
         args.runs = recordings_folder(args.runs)
         rec = load(args.runs)
-        out = output_folder(args.out)
+        out = check_folder(args.out, "tables")
     except RecorderError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

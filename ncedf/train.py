@@ -23,7 +23,6 @@ import argparse
 import contextlib
 import dataclasses
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -275,13 +274,13 @@ def _output_problem(stem: Path, overwrite: bool) -> str | None:
         return f"{next(t for t in existing if not t.is_file())} is a folder or another non-file; weights cannot replace it"
     if existing and not overwrite:
         return f"{existing[0]} exists (use --overwrite to replace it)"
-    folder = stem.parent
+    from recorder import RecorderError
+    from recorder.recorder import check_folder
+
     try:
-        folder.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryFile(dir=folder):
-            pass
-    except OSError as exc:
-        return f"cannot write to the output folder {folder}: {exc.strerror or exc}"
+        check_folder(stem.parent, "weights")
+    except RecorderError as exc:
+        return str(exc)
     return None
 
 

@@ -47,12 +47,20 @@ def check_writable(paths: dict[str, Path], overwrite: bool) -> None:
         if path.exists() and not overwrite:
             raise RecorderError(f"{path} exists; pass overwrite=True (--overwrite) to replace it")
     for folder in {p.parent for p in paths.values()}:
-        try:
-            folder.mkdir(parents=True, exist_ok=True)
-            with tempfile.TemporaryFile(dir=folder):
-                pass
-        except OSError as exc:
-            raise RecorderError(f"cannot write recordings to {folder}: {exc.strerror or exc}") from None
+        check_folder(folder, "recordings")
+
+
+def check_folder(folder, what: str) -> Path:
+    """Make ``folder`` where missing; `RecorderError` "cannot write {what} to {folder}: why" where it takes
+    no new file (a file in its place, no permission, a read-only file system). Returns it as a Path."""
+    folder = Path(folder)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except OSError as exc:
+        raise RecorderError(f"cannot write {what} to {folder}: {exc.strerror or exc}") from None
+    return folder
 
 
 def recording_id(app_id: str, meta: Mapping[str, Any]) -> str:

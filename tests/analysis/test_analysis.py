@@ -413,7 +413,7 @@ def test_an_output_folder_that_cannot_hold_files_is_a_one_line_error(tmp_path, c
     for out, why in [(tmp_path / "taken", "taken"), ("/proc/tables", "/proc/tables")]:  # /proc: not even as root
         assert main([str(runs), "--out", str(out)]) == 2
         err = capsys.readouterr().err.strip().splitlines()
-        assert err == [err[0]] and err[0].startswith("error: cannot write to the output folder") and why in err[0]
+        assert err == [err[0]] and err[0].startswith(f"error: cannot write {command[5:]} to") and why in err[0]
     assert (tmp_path / "taken").read_text() == "a file of the user's"
 
 

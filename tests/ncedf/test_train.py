@@ -130,7 +130,7 @@ def test_cli_names_weights_it_cannot_write_before_training(capsys, tmp_path, mon
     monkeypatch.setattr("ncedf.train.train_links", lambda *a, **k: trained.append(1))
     assert main(["--out", "/proc/m"]) == 2  # /proc takes no new files, even as root
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith("error: cannot write to the output folder /proc") and not trained
+    assert len(err) == 1 and err[0].startswith("error: cannot write weights to /proc") and not trained
 
 
 def test_cli_trains_saves_a_loadable_model_and_records_the_run(tmp_path):
