@@ -44,8 +44,8 @@ def _main(args) -> int:
         args.runs = recordings_folder(args.runs)
         if args.model is not None and not Path(args.model).with_suffix(".msgpack").is_file():
             raise RecorderError(f"model {args.model} not found (expected {Path(args.model).with_suffix('.msgpack')})")
-        rec = load(args.runs)
         out = check_folder(args.out, "figures")
+        rec = load(args.runs)
     except RecorderError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -48,8 +48,8 @@ def main(argv=None) -> int:
 def _main(args) -> int:
     try:
         args.runs = recordings_folder(args.runs)
-        rec = load(args.runs)
         out = check_folder(args.out, "tables")
+        rec = load(args.runs)
     except RecorderError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

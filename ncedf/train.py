@@ -267,18 +267,12 @@ def train(
 
 def _output_problem(stem: Path, overwrite: bool) -> str | None:
     """Why the weights cannot be written to ``stem``.msgpack/.json, checked before training."""
-    stem = stem.with_suffix("")
-    targets = [stem.with_suffix(".msgpack"), stem.with_suffix(".json")]
-    existing = [t for t in targets if t.exists()]
-    if any(not t.is_file() for t in existing):
-        return f"{next(t for t in existing if not t.is_file())} is a folder or another non-file; weights cannot replace it"
-    if existing and not overwrite:
-        return f"{existing[0]} exists (use --overwrite to replace it)"
     from recorder import RecorderError
-    from recorder.recorder import check_folder
+    from recorder.recorder import check_writable
 
+    stem = stem.with_suffix("")
     try:
-        check_folder(stem.parent, "weights")
+        check_writable({kind: stem.with_suffix(f".{kind}") for kind in ("msgpack", "json")}, overwrite, "weights")
     except RecorderError as exc:
         return str(exc)
     return None

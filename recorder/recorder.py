@@ -39,15 +39,31 @@ def output_paths(out: str | Path, formats=FORMATS) -> dict[str, Path]:
     return {fmt: out.with_name(f"{out.name}.{fmt}") for fmt in FORMATS if fmt in formats}
 
 
-def check_writable(paths: dict[str, Path], overwrite: bool) -> None:
-    """Raise `RecorderError` if an output exists (and not `overwrite`) or its folder cannot be written."""
+def check_writable(paths: dict[str, Path], overwrite: bool, what: str = "recordings") -> None:
+    """Raise `RecorderError` if an output (one of ``what``) is not a file, exists (and not `overwrite`), or its
+    folder cannot be written."""
     for path in paths.values():
         if path.exists() and not path.is_file():
-            raise RecorderError(f"{path} is a folder or another non-file; a recording cannot replace it")
+            raise RecorderError(f"{path} is a folder or another non-file; {what} cannot replace it")
         if path.exists() and not overwrite:
             raise RecorderError(f"{path} exists; pass overwrite=True (--overwrite) to replace it")
     for folder in {p.parent for p in paths.values()}:
-        check_folder(folder, "recordings")
+        check_folder(folder, what)
+
+
+def check_creatable(folder, what: str) -> None:
+    """`RecorderError` "cannot write {what} to {folder}: why" unless ``folder``, or the nearest folder above
+    it that exists, takes new files; nothing is left behind (a temporary file is made and removed)."""
+    folder = Path(folder).resolve()
+    existing = next(p for p in (folder, *folder.parents) if p.exists())
+    try:
+        if not existing.is_dir():
+            raise NotADirectoryError(f"{existing} is not a folder")
+        with tempfile.TemporaryFile(dir=existing):
+            pass
+    except OSError as exc:
+        raise RecorderError(f"cannot write {what} to {folder}: {existing} takes no files "
+                            f"({exc.strerror or exc})") from None
 
 
 def check_folder(folder, what: str) -> Path:

@@ -30,9 +30,9 @@ from pathlib import Path
 import numpy as np
 
 from scenarios.cli import base_settings, make_parser, run_cli
-from scenarios.episode import (EpisodeSettings, Scene, make_scene, option_positive, option_vector,
+from scenarios.episode import (EpisodeSettings, GoalWarning, Scene, make_scene, option_positive, option_vector,
                                require_fixed_goal, scenario_options)
-from scenarios.observe import MAX_OBSERVED, surface_count
+from scenarios.observe import MAX_OBSERVED
 from scenarios.obstacle_file import load_obstacle
 from scenarios.solids import DENSITY
 from scenarios.world import CloudObstacle, World
@@ -73,9 +73,9 @@ def check_observed_count(obstacle, density: float, named: str) -> None:
             raise ValueError(f"{named}: {len(obstacle.points)} points, more than the {MAX_OBSERVED} a world may be "
                              "observed at: downsample the cloud")
         return
-    count = int(surface_count(obstacle.area, density))
+    count = obstacle.area * density  # in floats: a huge density overflows an int
     if count > MAX_OBSERVED:
-        raise ValueError(f"{named}: {obstacle.area:.4g} m^2 of surface at {density:g} points per m^2 is {count} "
+        raise ValueError(f"{named}: {obstacle.area:.4g} m^2 of surface at {density:g} points per m^2 is {count:.4g} "
                          f"observed points, more than {MAX_OBSERVED}: coordinates are read as metres (is the file "
                          "in millimetres?); else lower --density")
 
@@ -92,11 +92,11 @@ def warn_of_the_goal(scene: Scene, named: str) -> None:
         inside, near = mesh.closed and bool(mesh.index.inside(goal)[0]), float(mesh.index.distance(goal)[0][0])
     tip = float(np.atleast_1d(scene.spec.radius)[-1])
     if inside:
-        warnings.warn(f"the goal {named} lies inside the obstacle: it cannot be reached", stacklevel=3)
+        warnings.warn(GoalWarning(f"the goal {named} lies inside the obstacle: it cannot be reached"), stacklevel=3)
     elif near + scene.tolerance < tip:
-        warnings.warn(f"the goal {named} lies {near:.2f} m from the obstacle: the robot's tip, of radius {tip:.2f} m, "
-                      f"cannot come within the goal tolerance of {scene.tolerance:.2f} m without touching it",
-                      stacklevel=3)
+        warnings.warn(GoalWarning(f"the goal {named} lies {near:.2f} m from the obstacle: the robot's tip, of radius "
+                                  f"{tip:.2f} m, cannot come within the goal tolerance of {scene.tolerance:.2f} m "
+                                  "without touching it"), stacklevel=3)
 
 
 def main(argv: list[str] | None = None) -> int:

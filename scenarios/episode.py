@@ -208,6 +208,10 @@ def goal_text(goal: str) -> str:
     return goal if position is None else ",".join(map(repr, position))
 
 
+class GoalWarning(UserWarning):
+    """A goal that no motion reaches: the episode runs on (and ends stuck)."""
+
+
 def beyond_reach(position, spec: RobotSpec, tolerance: float = 0.0) -> str | None:
     """Why a goal position (3,) m cannot be reached: it lies farther than the robot's length plus
     ``tolerance`` m from its base (the origin); None where it does not."""
@@ -300,7 +304,7 @@ def make_scene(settings: EpisodeSettings, world, goal, tolerance: float, max_ste
     spec = robot_spec(settings)
     reason = beyond_reach(goal[:3, 3] if goal.shape == (4, 4) else goal, spec, tolerance)
     if reason is not None:  # the episode runs on (it ends stuck): a scenario's own goal with a short robot
-        warnings.warn(f"{reason}: it cannot be reached", stacklevel=2)
+        warnings.warn(GoalWarning(f"{reason}: it cannot be reached"), stacklevel=2)
     dt, u = MPPIConfig.dt, unit(spec)
     observation = observe(observer.observe(0.0) / u, observer.observe(dt) / u, dt, ball_radius=world.margin_extra / u)
     config = preset(settings.controller, to_reference(spec), observation, samples=settings.samples,

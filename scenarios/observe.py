@@ -79,13 +79,12 @@ def make_observer(world: World, key) -> Observer:
         raise WorldError(f"make_observer needs a World, got {type(world).__name__}")
     k_box, k_mesh, k_tri, k_sphere = jax.random.split(_as_key(key), 4)
     faces = [_box_faces(b.centre, b.size) for b in world.boxes]
-    counts = surface_count(np.concatenate([f[2] for f in faces]) if faces else np.zeros(0), world.density)
     mesh_areas = [triangle_areas(mesh.triangles) for mesh in world.meshes]
-    total = int(counts.sum()) + sum(int(surface_count(a.sum(), world.density)) for a in mesh_areas) + sum(
-        len(c.points) for c in world.clouds)
-    if total > MAX_OBSERVED:
-        raise WorldError(f"the world would be observed at {total} points at density {world.density:g} per m^2, "
-                         f"more than {MAX_OBSERVED}: lower the density")
+    area = sum(float(f[2].sum()) for f in faces) + sum(float(a.sum()) for a in mesh_areas)
+    if world.density * area > MAX_OBSERVED:  # checked in floats: a huge density overflows the counts
+        raise WorldError(f"{area:.4g} m^2 of surface at {world.density:g} points per m^2 is {world.density * area:.4g} "
+                         f"observed points, more than {MAX_OBSERVED}: lower the density")
+    counts = surface_count(np.concatenate([f[2] for f in faces]) if faces else np.zeros(0), world.density)
     parts = []
     if world.boxes:
         centres = np.concatenate([f[0] for f in faces])

@@ -30,7 +30,9 @@ def load_obstacle(path, offset=(0.0, 0.0, 0.0)) -> MeshObstacle | CloudObstacle:
     shift = np.asarray(finite_vector(offset, "offset", "load_obstacle"))
     name = os.path.basename(path)
     if not os.path.isfile(path):
-        raise WorldError(f"obstacle file {path!r} " + ("is a folder" if os.path.isdir(path) else "does not exist"))
+        what = ("does not exist" if not os.path.exists(path) else "is a folder" if os.path.isdir(path)
+                else "is not a regular file")
+        raise WorldError(f"obstacle file {path!r} {what}")
     ext = os.path.splitext(path)[1].lower()
     _check_declared_faces(path, ext)
     try:

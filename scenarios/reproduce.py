@@ -51,7 +51,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
 import signal
 import sys
 import time
@@ -467,8 +466,9 @@ def budget_from(args) -> Budget:
 
 
 def main(argv=None) -> int:
-    from recorder import RecordingInterrupted
+    from recorder import RecorderError, RecordingInterrupted
     from recorder.cli import EXIT_STATUS, Stopped, stop_on_signals
+    from recorder.recorder import check_creatable
 
     args = parse_args(argv)
     try:
@@ -477,9 +477,10 @@ def main(argv=None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     out = Path(args.out)
-    existing = next(p for p in (out.resolve(), *out.resolve().parents) if p.exists())
-    if not existing.is_dir() or not os.access(existing, os.W_OK | os.X_OK):
-        print(f"error: cannot write recordings to {out}: {existing} is not a writable folder", file=sys.stderr)
+    try:
+        check_creatable(out, "recordings")
+    except RecorderError as exc:
+        print(f"error: {exc}", file=sys.stderr)
         return 2
     if args.executor == "ray":
         from scenarios.sweep import ray_missing

@@ -77,7 +77,7 @@ from tqdm import tqdm
 
 from recorder import IncompleteRecordingWarning, RecorderError, RecordingInterrupted, load_run
 from recorder.cli import EXIT_STATUS, OneLineParser, Stopped, exit_with, one_line_warnings, stop_on_signals
-from recorder.recorder import FORMATS, output_paths
+from recorder.recorder import FORMATS, check_creatable, output_paths
 from scenarios import manifest
 
 if TYPE_CHECKING:
@@ -265,45 +265,55 @@ def release_programs(share: float | None = None) -> bool:
     return True
 
 
-#: The signal that stopped an episode in this worker process, once one has (its recorder caught it).
-_SIGNALLED: list[signal.Signals] = []
-
-
-def _end_worker(signum: signal.Signals) -> None:
-    """End this process by `signum` as if no recorder had caught it."""
-    signal.signal(signum, signal.SIG_DFL)
-    signal.raise_signal(signum)
-
-
-def run_one(settings: EpisodeSettings, stem: str, formats: Sequence[str]) -> tuple[float, str | None]:
-    """Run one episode into `stem` (overwriting) -> (wall seconds, None or the error on one line); then
-    :func:`release_programs`, as a worker runs many. An obstacle file's mesh warnings are not repeated:
-    the sweep's check (`check_configurations`, unless ``run_sweep(check=False)``) showed them before the
-    workers started. A worker whose episode a signal stopped ends at its next episode, before writing
-    anything: the pool may already have queued one for it, which the stopping sweep would kill half-written."""
-    from scenarios.episode import run_episode
+def run_one(settings: EpisodeSettings, stem: str,
+            formats: Sequence[str]) -> tuple[float, str | None, str | None]:
+    """Run one episode into `stem` (overwriting) -> (wall seconds, None or the error on one line, None or
+    the signal that stopped it); then :func:`release_programs`, as a worker runs many. An obstacle file's
+    mesh and goal warnings are not repeated: the sweep's check (`check_configurations`, unless
+    ``run_sweep(check=False)``) showed them before the workers started."""
+    from scenarios.episode import GoalWarning, run_episode
     from scenarios.mesh_check import MeshWarning
 
-    if _SIGNALLED:
-        _end_worker(_SIGNALLED[0])
     start = time.perf_counter()
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", MeshWarning)
+            warnings.simplefilter("ignore", GoalWarning)
             result = run_episode(settings, out=stem, formats=tuple(formats), overwrite=True)
     except Exception as exc:  # reported by the sweep; the other episodes go on
-        return time.perf_counter() - start, one_line(exc)
+        return time.perf_counter() - start, one_line(exc), None
     finally:
         release_programs()
-    if result.signal:
-        _SIGNALLED.append(signal.Signals[result.signal])
-    return time.perf_counter() - start, None
+    return time.perf_counter() - start, None, result.signal
+
+
+#: The signal that stopped an episode in this pool worker, once one has (its recorder caught it).
+_SIGNALLED: list[signal.Signals] = []
+
+
+def _end_worker(signum: signal.Signals) -> None:
+    """End this process by `signum` as if no recorder had caught it (by its exit status where it is blocked)."""
+    signal.signal(signum, signal.SIG_DFL)
+    signal.raise_signal(signum)
+    os._exit(128 + signum)
+
+
+def _local_episode(settings: EpisodeSettings, stem: str, formats: Sequence[str]) -> tuple[float, str | None]:
+    """:func:`run_one` in a local pool's worker. A worker whose episode a signal stopped ends at its next
+    episode, before writing anything: the pool may already have queued one for it, which the stopping
+    sweep would kill half-written (a worker signalled alone breaks its pool: its round runs again)."""
+    if _SIGNALLED:
+        _end_worker(_SIGNALLED[0])
+    seconds, error, signame = run_one(settings, stem, formats)
+    if signame:
+        _SIGNALLED.append(signal.Signals[signame])
+    return seconds, error
 
 
 def _ray_episode(settings: EpisodeSettings, stem: str, formats: Sequence[str],
                  cache_dir: str | None) -> tuple[float, str | None]:
     start_jax(1, cache_dir)
-    return run_one(settings, stem, formats)
+    return run_one(settings, stem, formats)[:2]
 
 
 # ---------------------------------------------------------------- executors
@@ -374,7 +384,7 @@ def _run_round(todo: list[EpisodeSettings], out: Path, formats, workers: int, ca
     before = set(multiprocessing.active_children())
     pool = cf.ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
                                   initializer=_init_local_worker, initargs=(cores, cache_dir))
-    futures = {pool.submit(run_one, s, str(out / episode_name(s)), formats): s for s in todo}
+    futures = {pool.submit(_local_episode, s, str(out / episode_name(s)), formats): s for s in todo}
     pending, left = set(futures), []
     try:
         while pending and stop.signum is None and not left:
@@ -570,9 +580,10 @@ def _checked_arguments(episodes, out, formats, executor: str, workers, recycle) 
     if repeated:
         raise ValueError(f"episode {repeated[0]} is given more than once (a repeated value?)")
     out = Path(out).resolve()
-    existing = next(p for p in (out, *out.parents) if p.exists())
-    if not existing.is_dir() or not os.access(existing, os.W_OK | os.X_OK):
-        raise ValueError(f"cannot write recordings to {out}: {existing} is not a writable folder")
+    try:
+        check_creatable(out, "recordings")
+    except RecorderError as exc:
+        raise ValueError(str(exc)) from None
     return formats, workers, out
 
 

@@ -29,3 +29,11 @@ def test_an_option_below_one_is_a_one_line_error_and_writes_nothing(tmp_path, ca
     err = capsys.readouterr().err.strip()
     assert err == "error: --env-seeds must be >= 1, got 0"
     assert not out.exists()
+
+
+def test_an_out_folder_where_no_file_can_go_is_a_one_line_error(tmp_path, capsys):
+    (tmp_path / "taken").write_text("")
+    for out, why in [(tmp_path / "taken" / "runs", "taken is not a folder"), ("/proc/ncedf-runs", "/proc takes no")]:
+        assert main(["table4", "--out", str(out)]) == 2  # /proc takes no new file, even as root
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith("error: cannot write recordings to") and why in err[0]

@@ -96,6 +96,7 @@ def test_a_signal_keeps_the_steps_so_far(cluttered_run, capsys, monkeypatch, sig
     (["--shape", "exact", "--model", "m.msgpack"], "m.msgpack"),
     (["--density", "0"], "density '0'"),
     (["--density", "many"], "many"),
+    (["--density", "1e30"], "at 1e+30 points per m^2"),  # past the observed points' limit, not drawn
 ])
 def test_bad_values_exit_2_with_one_line_and_write_nothing(tmp_path, capsys, argv, named):
     out = tmp_path / "new" / "rec"

@@ -29,8 +29,8 @@ import scenarios.episode
 import scenarios.sweep
 from scenarios import manifest
 from scenarios.episode import EpisodeSettings, episode_name
-from scenarios.sweep import (FINAL_OUTCOMES, JAX_CACHE, Recorded, main, read_complete, release_programs, run_one,
-                             run_sweep, sweep_settings)
+from scenarios.sweep import (FINAL_OUTCOMES, JAX_CACHE, Recorded, _local_episode, main, read_complete, release_programs,
+                             run_one, run_sweep, sweep_settings)
 
 TINY = ["--scenario", "spheres", "--shapes", "spheres", "--controllers", "release", "--samples", "16",
         "--horizon", "3"]
@@ -200,6 +200,12 @@ def test_bad_values_are_one_line_errors_and_write_nothing(tmp_path, capsys, args
     err = capsys.readouterr().err.strip().splitlines()
     assert status == 2 and len(err) == 1 and re.search(named, err[0]), err
     assert not out.exists()
+
+
+def test_an_out_folder_where_no_file_can_go_is_a_one_line_error(capsys):
+    assert main([*TINY, "--out", "/proc/ncedf-runs"]) == 2  # os.access says yes to root; /proc takes no new file
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "cannot write recordings to /proc/ncedf-runs: /proc takes no files" in err[0]
 
 
 def test_without_ray_the_ray_executor_is_a_one_line_error(tmp_path, capsys, monkeypatch):
@@ -383,15 +389,17 @@ def test_a_worker_drops_its_compiled_programs_past_a_share_of_the_kernels_map_li
     released = []
     monkeypatch.setattr(scenarios.sweep, "release_programs", lambda: released.append(True))
     monkeypatch.setattr(scenarios.episode, "run_episode", lambda *a, **k: 1 / 0)
-    seconds, error = run_one(tiny(0), str(tmp_path / "one"), ("mcap",))
+    seconds, error, _ = run_one(tiny(0), str(tmp_path / "one"), ("mcap",))
     assert "division by zero" in error and released == [True]  # after a failed episode too
 
 
-def test_a_worker_does_not_repeat_the_mesh_warnings_the_sweeps_check_showed(monkeypatch, tmp_path):
+def test_a_worker_does_not_repeat_the_mesh_and_goal_warnings_the_sweeps_check_showed(monkeypatch, tmp_path):
+    from scenarios.episode import GoalWarning
     from scenarios.mesh_check import MeshWarning
 
     def episode(*args, **kwargs):
         warnings.warn(MeshWarning("mesh 'part.stl' is open"))
+        warnings.warn(GoalWarning("goal (9.0, 0.0, 0.0) is 9.00 m from the base: it cannot be reached"))
         warnings.warn(UserWarning("something else"))
         return SimpleNamespace(signal=None)
 
@@ -424,9 +432,9 @@ def test_a_worker_whose_episode_a_signal_stopped_starts_no_other(monkeypatch, tm
     monkeypatch.setattr(scenarios.sweep, "_end_worker", end)
     monkeypatch.setattr(scenarios.sweep, "_SIGNALLED", [])
     for env in (0, 1):
-        assert run_one(tiny(env), str(tmp_path / f"e{env}"), ("mcap",))[1] is None
+        assert _local_episode(tiny(env), str(tmp_path / f"e{env}"), ("mcap",))[1] is None
     with pytest.raises(_Ended):
-        run_one(tiny(2), str(tmp_path / "e2"), ("mcap",))
+        _local_episode(tiny(2), str(tmp_path / "e2"), ("mcap",))
     assert ran == [0, 1] and ended == [signal.Signals[signame]]
 
 

@@ -303,12 +303,12 @@ def test_load_meshes_and_clouds_from_files(tmp_path):
 @pytest.mark.parametrize("name, content, why", [
     ("missing.stl", None, "does not exist"),
     ("part.stl", "a folder", "is a folder"),
-    ("garbage.stl", b"solid nothing\nthis is not an stl\n", ""),
+    ("garbage.stl", b"solid nothing\nthis is not an stl\n", "holds no geometry"),
     ("flat.npy", "wrong shape", "shape"),
     ("bad.xyz", b"1 2\n3 4\n", "x y z per line"),
     ("nan.xyz", b"1 2 nan\n", "NaN"),
     ("empty.xyz", b"", "shape"),
-    ("empty.obj", b"# no geometry\n", ""),
+    ("empty.obj", b"# no geometry\n", "holds no geometry"),
 ])
 def test_bad_obstacle_file_gives_one_line_naming_it(tmp_path, name, content, why):
     path = tmp_path / name
@@ -347,8 +347,10 @@ def test_a_density_past_the_observed_points_limit_is_refused_before_drawing():
     box = Box((1.0, 2.0, 3.0), (1.0, 2.5, 0.4))  # 7.8 m^2 of surface
     limit = MAX_OBSERVED / 7.8
     assert len(make_observer(World(boxes=(box,), density=0.99 * limit), 0).observe(0.0)) <= MAX_OBSERVED
-    with pytest.raises(WorldError, match=f"observed at {round(1e9 * 7.8)} points at density 1e\\+09"):
+    with pytest.raises(WorldError, match=r"7.8 m\^2 of surface at 1e\+09 points per m\^2 is 7.8e\+09 observed"):
         make_observer(World(boxes=(box,), density=1e9), 0)  # drawn, 7.8e9 points would take 187 GB
+    with pytest.raises(WorldError, match=r"at 1e\+30 points per m\^2 is 7.8e\+30 observed"):
+        make_observer(World(boxes=(box,), density=1e30), 0)  # past int64: counted in floats
 
 
 def test_sphere_points_move_with_the_sphere_and_keys_repeat():
