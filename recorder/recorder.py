@@ -67,15 +67,10 @@ def check_creatable(folder, what: str) -> None:
 
 
 def check_folder(folder, what: str) -> Path:
-    """Make ``folder`` where missing; `RecorderError` "cannot write {what} to {folder}: why" where it takes
-    no new file (a file in its place, no permission, a read-only file system). Returns it as a Path."""
+    """:func:`check_creatable`, then make ``folder`` where missing. Returns it as a Path."""
+    check_creatable(folder, what)
     folder = Path(folder)
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryFile(dir=folder):
-            pass
-    except OSError as exc:
-        raise RecorderError(f"cannot write {what} to {folder}: {exc.strerror or exc}") from None
+    folder.mkdir(parents=True, exist_ok=True)
     return folder
 
 

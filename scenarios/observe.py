@@ -84,9 +84,9 @@ def make_observer(world: World, key) -> Observer:
     if world.density * area > MAX_OBSERVED:  # checked in floats: a huge density overflows the counts
         raise WorldError(f"{area:.4g} m^2 of surface at {world.density:g} points per m^2 is {world.density * area:.4g} "
                          f"observed points, more than {MAX_OBSERVED}: lower the density")
-    counts = surface_count(np.concatenate([f[2] for f in faces]) if faces else np.zeros(0), world.density)
     parts = []
     if world.boxes:
+        counts = surface_count(np.concatenate([f[2] for f in faces]), world.density)
         centres = np.concatenate([f[0] for f in faces])
         half_edges = np.concatenate([f[1] for f in faces])
         face = np.repeat(np.arange(len(counts)), counts)
