@@ -6,7 +6,7 @@ Reads every recording under RUNS (default runs/, or the current folder where the
 after ``python -m scenarios.cluttered``) through ``recorder.read``; each table puts the
 paper's figures beside ours. A table whose recordings are missing is skipped with a line naming
 the command that produces them; unreadable, unclosed or unfinished recordings are listed and
-left out.
+left out. A folder with no recordings at all is refused (exit status 2, nothing written).
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from analysis.load import load, recordings_folder  # noqa: E402
 from analysis.tables import BUILDERS  # noqa: E402
 from recorder import RecorderError  # noqa: E402
 from recorder.cli import OneLineParser, exit_with  # noqa: E402
-from recorder.recorder import check_folder  # noqa: E402
+from recorder.recorder import check_creatable, check_folder  # noqa: E402
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -48,8 +48,12 @@ def main(argv=None) -> int:
 def _main(args) -> int:
     try:
         args.runs = recordings_folder(args.runs)
-        out = check_folder(args.out, "tables")
+        check_creatable(args.out, "tables")
         rec = load(args.runs)
+        if rec.files == 0:
+            raise RecorderError(f"no recordings (.mcap, .rrd) under {args.runs}; make them with a scenario, a sweep "
+                                "or `python -m scenarios.reproduce`")
+        out = check_folder(args.out, "tables")
     except RecorderError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -394,12 +394,18 @@ def test_reproduce_skips_complete_networks_and_timing_cases(folder, capsys):
 
 def test_a_runs_folder_where_there_is_one_is_the_default(tmp_path):
     """make_tables with no argument reads runs/ where there is one (else the current folder: the
-    user's day, ``tests/integration/test_users_day.py``)."""
+    user's day, ``tests/integration/test_users_day.py``); a folder without recordings is refused in
+    one line, and no tables folder is made."""
     shutil.copy(ROOT / "results" / "closed_loop" / "cluttered_L7_ours_s0.mcap", tmp_path / "recording.mcap")
     (tmp_path / "runs").mkdir()
     done = subprocess.run([sys.executable, str(ROOT / "analysis" / "make_tables.py")], cwd=tmp_path,
                           capture_output=True, text=True, timeout=300)
-    assert done.returncode == 0 and "read 0 recordings under runs" in done.stderr
+    assert done.returncode == 2 and done.stderr.startswith("error: no recordings (.mcap, .rrd) under runs;")
+    assert len(done.stderr.strip().splitlines()) == 1 and not (tmp_path / "tables").exists()
+    shutil.move(tmp_path / "recording.mcap", tmp_path / "runs")
+    done = subprocess.run([sys.executable, str(ROOT / "analysis" / "make_tables.py")], cwd=tmp_path,
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0 and "read 1 recordings under runs" in done.stderr
 
 
 @pytest.mark.parametrize("command", ["make_tables", "make_figures"])
