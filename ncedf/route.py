@@ -30,7 +30,10 @@ over arc lengths, checked against the convex model of the static obstacles
   an edge where either node lists the other), kept where the states inside the
   segment, ``check_step`` apart in every arc length, have at least
   ``edge_clearance`` (the current state's own edges too: the robot may be
-  closer than ``node_clearance`` where it stalled). The body
+  closer than ``node_clearance`` where it stalled; where it stalled closer
+  than ``edge_clearance`` and none of its edges passes, the route first
+  moves to the state around it whose segment keeps the most clearance, never
+  less than its own, and the roadmap starts there: :func:`way_out`). The body
   is that sensitive to its arc lengths: 0.01 m of change moves a joint by up to
   0.55 m with 4 links and 1.3 m with 7 (random states, p99 0.43 and 0.78 m).
   So the random nodes alone leave a robot stalled near a box unconnected
@@ -386,6 +389,26 @@ def edge_clearances(a: np.ndarray, b: np.ndarray, spec: RobotSpec, polytopes: Po
     return clear
 
 
+def way_out(start: np.ndarray, around_start: np.ndarray, spec: RobotSpec, polytopes: Polytopes,
+            config: RouteConfig) -> np.ndarray | None:
+    """Where the roadmap starts: ``start`` (M, 3) itself where its clearance is ``edge_clearance`` or more, or
+    where a segment to one of the states ``around_start`` (L, M, 3) keeps it. Else (a robot stalled nearer,
+    pressed against a surface: none of its edges would pass the check) the state around it whose segment
+    keeps the most clearance, if that is never less than the start's own: the route first moves there,
+    never nearer the obstacles than it is. None where no segment does."""
+    now = clearances(start[None], spec, polytopes)[0]
+    if now >= config.edge_clearance:
+        return start
+    if len(around_start) == 0:
+        return None
+    along = edge_clearances(np.repeat(start[None], len(around_start), axis=0), around_start, spec, polytopes,
+                            config.check_step)
+    best = int(np.argmax(along))
+    if along[best] >= config.edge_clearance:
+        return start
+    return around_start[best] if along[best] >= now else None
+
+
 def clear_edges(a: np.ndarray, b: np.ndarray, spec: RobotSpec, polytopes: Polytopes, config: RouteConfig) -> np.ndarray:
     """(E,) bool: whether each segment from a to b (E, M, 3) keeps ``edge_clearance`` (:func:`edge_clearances`,
     checked ``check_step`` apart)."""
@@ -515,7 +538,10 @@ def plan_route(spec: RobotSpec, polytopes: Polytopes, start, goal, key, config: 
     local = np.asarray(around(jnp.asarray(start), jax.random.fold_in(key, 1), spec, config.local_samples,
                               config.local_radius), np.float32)
     local = local[clearances(local, spec, polytopes) >= config.edge_clearance]
-    others = np.concatenate([start[None], free, local, chains])
+    first = way_out(start, local, spec, polytopes, config)
+    if first is None:
+        return None
+    others = np.concatenate([first[None], free, local, chains])
     checked = {}  # the second try's nodes begin with the first's: their edges are checked once
     path = roadmap_path(others, targets, spec, polytopes, config, checked)
     if path is None and not aligned_only:  # the second try: goal states lifted clear of the obstacles
@@ -526,6 +552,8 @@ def plan_route(spec: RobotSpec, polytopes: Polytopes, start, goal, key, config: 
     if path is None:
         return None
     path = shortcut(path, spec, polytopes, config)
+    if first is not start:
+        path = np.concatenate([start[None], path])
     inner, segment = between(path[:-1], path[1:], config.path_step)
     order = np.argsort(np.concatenate([segment + 0.5, np.arange(len(path))]), kind="stable")
     return np.concatenate([inner, path])[order]

@@ -61,6 +61,31 @@ def test_the_route_goes_round_the_bar_to_the_goal(polytopes):
     assert _exact(straight).min() < 0.0  # the straight way to the same end state crosses the bar
 
 
+def test_a_robot_stalled_nearer_than_the_edge_clearance_leaves_first_never_nearer(polytopes):
+    """A start pressed against the bar (model clearance 0.03-0.12 m, below ``edge_clearance``): no edge from it
+    to the states around it keeps ``edge_clearance``, so the roadmap alone holds no route; the route first
+    leaves along a segment never nearer the bar than the start, then keeps the edges' clearance."""
+    states = np.asarray(sample_arc_lengths(jax.random.PRNGKey(3), SPEC, (4000, 2)), np.float32)
+    near = clearances(states, SPEC, polytopes)
+    start = states[np.flatnonzero((near > 0.03) & (near < 0.12))[0]]
+    now = clearances(start[None], SPEC, polytopes)[0]
+    key = jax.random.PRNGKey(0)
+    local = np.asarray(around(jnp.asarray(start), jax.random.fold_in(key, 1), SPEC, ROUTE.local_samples,
+                              ROUTE.local_radius), np.float32)
+    local = local[clearances(local, SPEC, polytopes) >= ROUTE.edge_clearance]
+    assert not route_module.clear_edges(np.repeat(start[None], len(local), axis=0), local, SPEC, polytopes,
+                                        ROUTE).any()
+    route = plan_route(SPEC, polytopes, start, GOAL, key, ROUTE)
+    assert route is not None
+    np.testing.assert_array_equal(route[0], start)
+    assert np.max(np.abs(np.diff(route, axis=0))) <= ROUTE.path_step + 1e-6
+    assert np.linalg.norm(tips(route[-1:], SPEC)[0] - GOAL) <= ROUTE.goal_tolerance
+    along = clearances(route, SPEC, polytopes)
+    assert along.min() >= now - 1e-6 and _exact(route).min() > 0.0
+    left = np.argmax(along >= ROUTE.edge_clearance)  # once out, the roadmap's edges keep their clearance
+    assert left > 0 and along[left:].min() >= ROUTE.edge_clearance - 1e-6
+
+
 @pytest.mark.parametrize("check_step, every_state_checked", [(RouteConfig().check_step, True), (0.01, False)])
 def test_every_state_of_the_route_was_checked_clear_at_the_default_check_step(polytopes, monkeypatch, check_step,
                                                                               every_state_checked):
