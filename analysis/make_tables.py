@@ -23,7 +23,7 @@ from analysis.load import load, recordings_folder  # noqa: E402
 from analysis.tables import BUILDERS  # noqa: E402
 from recorder import RecorderError  # noqa: E402
 from recorder.cli import OneLineParser, exit_with  # noqa: E402
-from recorder.recorder import check_creatable, check_folder  # noqa: E402
+from recorder.recorder import check_creatable  # noqa: E402
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -53,10 +53,11 @@ def _main(args) -> int:
         if rec.files == 0:
             raise RecorderError(f"no recordings (.mcap, .rrd) under {args.runs}; make them with a scenario, a sweep "
                                 "or `python -m scenarios.reproduce`")
-        out = check_folder(args.out, "tables")
     except RecorderError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    out = Path(args.out)  # checked before the recordings were read; made once there is something to write
+    out.mkdir(parents=True, exist_ok=True)
     print(f"read {rec.files} recordings under {args.runs} in {rec.seconds:.2f} s "
           f"({len(rec.runs)} runs used)", file=sys.stderr)
     report_problems(rec)
