@@ -9,11 +9,10 @@ between 0.02 and 0.5 m: near a surface, where the collision cost decides. Around
 each, the rollouts of the ``ours`` preset (its sampling, covariance, noise clip,
 rollouts and horizon; zero nominal). Per density, the world is observed at that
 many points per m^2 of box face (``scenarios.observe.make_observer``), and the
-broad phase with each selection (``ncedf.broad_phase``; the preset's sizes) and
-brute force give every rollout state's minimum distance to the cloud, per
-shape representation.
+broad phase (``ncedf.broad_phase``; the preset's sizes) and brute force give
+every rollout state's minimum distance to the cloud, per shape representation.
 
-Printed per (density, links, shape, selection): the rollout states compared; the share
+Printed per (density, links, shape): the rollout states compared; the share
 within 1e-5 m of brute force; the share the broad phase over-estimates by more
 than 2 cm (those rollouts look safer than they are), and the largest
 over-estimate; the time of one call of each (N x H states, mean of ``--repeats``
@@ -33,7 +32,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from arguments import parse_list, positive
-from ncedf.broad_phase import SELECTIONS, rollout_min_distances_broad, rollout_min_distances_brute
+from ncedf.broad_phase import rollout_min_distances_broad, rollout_min_distances_brute
 from ncedf.sampling import bounded_controls, sample_noise
 from ncedf.model import load_model
 from ncedf.robot import RobotSpec, sample_arc_lengths
@@ -84,8 +83,8 @@ def timed(fn, arg, repeats: int) -> tuple[np.ndarray, float]:
     return np.asarray(out), (time.perf_counter() - start) / repeats
 
 
-def compare(density: float, links: int, shape_name: str, args, model) -> list[dict]:
-    """One row per selection (``ncedf.broad_phase.SELECTIONS``) against brute force on the same rollouts."""
+def compare(density: float, links: int, shape_name: str, args, model) -> dict:
+    """The broad phase against brute force on the same rollouts: one row."""
     spec = RobotSpec(links)
     cloud = make_observer(cluttered.make_world(density), args.seed).observe(0.0)
     controller = ours(spec, Observation(len(cloud)))
@@ -94,27 +93,20 @@ def compare(density: float, links: int, shape_name: str, args, model) -> list[di
     mask = jnp.arange(config.max_points) < len(cloud)
     shape = make_shape(shape_name, spec, model=model if shape_name == "ncedf" else None)
     brute = jax.jit(lambda a: rollout_min_distances_brute(shape, a, points, mask))
-    broad = {s: jax.jit(lambda a, s=s: rollout_min_distances_broad(
-        shape, a, points, mask, broad_phase.k1, broad_phase.k2, broad_phase.capsule_segments, selection=s,
-        groups=broad_phase.groups, group_size=broad_phase.group_size)) for s in SELECTIONS}
-    diffs = {s: [] for s in SELECTIONS}
-    times = {s: [] for s in SELECTIONS + ("brute",)}
+    broad = jax.jit(lambda a: rollout_min_distances_broad(shape, a, points, mask, broad_phase.k1, broad_phase.k2,
+                                                          broad_phase.capsule_segments))
+    diffs, times = [], {"broad": [], "brute": []}
     for i, state in enumerate(near_states(spec, args.states, args.seed)):
         arcs = rollouts(spec, controller, state, jax.random.PRNGKey(args.seed + i))
         bf, t = timed(brute, arcs, 1)
         times["brute"].append(t)
-        for s in SELECTIONS:
-            bp, t = timed(broad[s], arcs, args.repeats)
-            diffs[s].append((bp - bf).ravel())
-            times[s].append(t)
-    rows = []
-    for s in SELECTIONS:
-        d = np.concatenate(diffs[s])
-        rows.append({"density": density, "links": links, "shape": shape_name, "selection": s, "points": len(cloud),
-                     "states": d.size, "agree": float(np.mean(np.abs(d) <= 1e-5)), "over": float(np.mean(d > OVER)),
-                     "max_over": float(d.max()), "broad_ms": 1e3 * float(np.mean(times[s])),
-                     "brute_ms": 1e3 * float(np.mean(times["brute"]))})
-    return rows
+        bp, t = timed(broad, arcs, args.repeats)
+        diffs.append((bp - bf).ravel())
+        times["broad"].append(t)
+    d = np.concatenate(diffs)
+    return {"density": density, "links": links, "shape": shape_name, "points": len(cloud), "states": d.size,
+            "agree": float(np.mean(np.abs(d) <= 1e-5)), "over": float(np.mean(d > OVER)), "max_over": float(d.max()),
+            "broad_ms": 1e3 * float(np.mean(times["broad"])), "brute_ms": 1e3 * float(np.mean(times["brute"]))}
 
 
 def main(argv=None) -> int:
@@ -133,13 +125,13 @@ def main(argv=None) -> int:
     model = load_model() if "ncedf" in shapes else None
     print(f"jax {jax.__version__} on {jax.devices()[0].platform}; ours preset rollouts from {args.states} states "
           f"per link count with exact clearance {NEAR[0]}-{NEAR[1]} m to the boxes")
-    print(f"{'density':>7} {'links':>5} {'shape':>8} {'selection':>9} {'points':>6} {'states':>7} {'agree':>7} "
+    print(f"{'density':>7} {'links':>5} {'shape':>8} {'points':>6} {'states':>7} {'agree':>7} "
           f"{'over 2cm':>8} {'max over':>8} {'broad ms':>9} {'brute ms':>9} {'ratio':>6}")
     groups = [(d, links, name) for d in args.densities for links in args.links for name in shapes]
     return print_rows(groups, lambda group: [
-        f"{r['density']:>7g} {r['links']:>5} {r['shape']:>8} {r['selection']:>9} {r['points']:>6} {r['states']:>7} "
+        f"{r['density']:>7g} {r['links']:>5} {r['shape']:>8} {r['points']:>6} {r['states']:>7} "
         f"{r['agree']:>7.4f} {r['over']:>8.4f} {r['max_over']:>8.3f} {r['broad_ms']:>9.1f} {r['brute_ms']:>9.1f} "
-        f"{r['brute_ms'] / r['broad_ms']:>6.1f}" for r in compare(*group, args, model)])
+        f"{r['brute_ms'] / r['broad_ms']:>6.1f}" for r in [compare(*group, args, model)]])
 
 
 if __name__ == "__main__":

@@ -71,7 +71,6 @@ VARIANTS: dict[str, tuple[str, dict]] = {
     "ours-smooth": ("ours", {"sampling.smoothing": 0.0}),
     "ours-sweep": ("ours", {"safety.sweep_first": False}),
     "ours-stall": ("ours", {"temperature.escape": None}),
-    "ours+state": ("ours", {"broad_phase.selection": "state"}),
     "ours-unclipped": ("ours", {"sampling.unclipped": False}),
     "ours-reach": ("ours", {"mppi.goal_reach": False}),
     "ours+race": ("ours", {"sampling.unclipped": True, "mppi.goal_reach": True}),

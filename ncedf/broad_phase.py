@@ -16,8 +16,8 @@ point ``p`` the *exact* distance to the link is ``>= LB(p, m) = min_s dist(p,
 [a_s, b_s]) - R``. (Valid for ``theta / S <= pi``; robots here bend at most
 ``spec.max_bend()`` ~ 2.3 rad per link.)
 
-Two selection rules, each in two stages of fixed sizes (so the program shape
-never changes). Selection ``mean`` (the default, fast):
+The selection, in two stages of fixed sizes (so the program shape never
+changes):
 
 1. Per horizon step ``k`` and link ``m``, over all rollouts: the mean capsule
    (the average over rollouts of the sub-arc end points ``a_s``, ``b_s``). The
@@ -41,29 +41,10 @@ separate arrays) with the candidates on the last axis, for all N x H states at
 once. Forward kinematics comes in as frames (the MPPI computes them once for
 the goal cost too). Measured step times: ``bench/mppi_step.py``.
 
-Selection ``mean`` fails for rollouts far from the average: their nearest
-points are not among the candidates of the average, and their distances are
-over-estimated, so rollouts that cross a surface can look safe. Near the
-paper's boxes, with the ``ours`` preset's rollouts, it over-estimates
-2% of the rollout distances by more than 2 cm at 4 observed points per m^2 and
-10-28% at 16 (``bench/broad_phase.py``). Selection ``state`` picks per rollout
-state:
-
-0. The cloud is cut into groups of ``B`` points that lie near each other
-   (consecutive points along a Morton curve, :func:`cloud_groups`), each with
-   a bounding sphere (centre c_g, radius rho_g): for every point p of g and
-   link m, ``LB(p, m) >= min_s dist(c_g, [a_s, b_s]) - rho_g - R =: LB(g, m)``.
-1. Per rollout state: ``LB(g, m)`` of every (link, group) pair from the
-   state's own capsules (N * H * M * S * P / B segment distances); C pairs
-   with small bounds are kept.
-2. Per rollout state: ``LB(p, m)`` of the C * B points of its pairs, each
-   against its pair's link; K2 pairs with small bounds are evaluated.
-
-Its selections (:func:`block_smallest`) keep the smallest entry of each of
-``BLOCKS`` x k strided blocks and rank those winners with a sorting network:
-element-wise operations only, because XLA's CPU reductions do not vectorise
-the bound computation fused into them. The smallest bound always survives;
-about one in ten of the others is lost to a smaller one in its block.
+The candidates of the average miss the nearest points of rollouts far from
+it, whose distances are then over-estimated; the share grows with the
+observed density (the candidates cover a fixed number of points, so a smaller
+area): ``bench/broad_phase.py`` measures it against brute force.
 
 Masked (padding) points get an infinite bound and distance, so they are never
 preferred over real points and never count.
@@ -81,15 +62,10 @@ import dataclasses
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from ncedf.robot import RobotSpec, arc_sagitta, bending_vector, even_series, forward_kinematics
 from ncedf.validate import check_fields
 
-#: The broad phase's candidate selections (module docstring).
-SELECTIONS = ("mean", "state")
-#: Selection ``state`` ranks the winners of this many strided blocks per kept entry.
-BLOCKS = 4
 
 
 @dataclasses.dataclass(frozen=True)
@@ -97,27 +73,20 @@ class BroadPhase:
     """The broad phase's sizes (module docstring).
 
     Attributes:
-      k1: candidate points per (horizon step, link) of selection "mean".
+      k1: candidate points per (horizon step, link).
       k2: (link, point) pairs evaluated per rollout state.
       capsule_segments: sub-arc capsules per link. Three capsules bound a link tighter than two
         (the sagitta of a third of the arc), so fewer pairs hold the minimum: with 6 pairs the
         rollout minima agree with brute force about as often as with 12 pairs of two capsules
         (``bench/mppi_step.py``).
-      selection: "mean" (candidates around the rollouts' average per horizon step: fast) or
-        "state" (per rollout state from groups of the cloud).
-      groups, group_size: selection "state": (link, group) pairs per state, points per group.
     """
 
     k1: int = 128
     k2: int = 6
     capsule_segments: int = 3
-    selection: str = "mean"
-    groups: int = 32
-    group_size: int = 16
 
     def __post_init__(self):
-        check_fields(self, integers=("k1", "k2", "capsule_segments", "groups", "group_size"),
-                     choices={"selection": SELECTIONS})
+        check_fields(self, integers=("k1", "k2", "capsule_segments"))
 
 
 def capsule_points(arcs: jnp.ndarray, frames: jnp.ndarray, spec: RobotSpec, segments: int):
@@ -268,172 +237,7 @@ def stage_two(xyz, radius, idx, points, mask, k2: int, segments: int, offset: fl
     return jnp.take_along_axis(link, pick // g, axis=-1), jnp.take_along_axis(pid.reshape(d.shape), pick, axis=-1)
 
 
-def _spread_bits(q: jnp.ndarray) -> jnp.ndarray:
-    """10-bit integers -> their bits at every third position (Morton interleaving), uint32."""
-    q = q.astype(jnp.uint32)
-    q = (q | (q << 16)) & jnp.uint32(0x030000FF)
-    q = (q | (q << 8)) & jnp.uint32(0x0300F00F)
-    q = (q | (q << 4)) & jnp.uint32(0x030C30C3)
-    return (q | (q << 2)) & jnp.uint32(0x09249249)
-
-
-def cloud_groups(points: jnp.ndarray, mask: jnp.ndarray, size: int):
-    """The cloud cut into groups of ``size`` points that lie near each other, with bounding spheres.
-
-    The real points are sorted along a Morton (Z-order) curve of their
-    coordinates, quantised to 1024 levels per axis over their bounding box,
-    masked points last; consecutive runs of ``size`` form the groups (the
-    cloud is padded with masked points to a multiple of ``size``). A group's
-    sphere is centred on the bounding box of its real points and reaches the
-    farthest of them, so every point of group g lies within ``radius[g]`` of
-    ``centre[g]`` whatever the order: a jump of the curve only makes a sphere
-    larger (a weaker bound, never a wrong one).
-
-    Args:
-      points: (P, 3) m; mask: (P,) bool, True = real point.  size: points per group.
-    Returns:
-      index (G, size) int32 into ``points`` (padding rows index a masked point; use ``valid``),
-      valid (G, size) bool, centre (G, 3) m, radius (G,) m (-inf for a group without real points).
-    """
-    n = points.shape[0]
-    pad = (-n) % size
-    index = jnp.arange(n + pad, dtype=jnp.int32)
-    real = jnp.concatenate([mask, jnp.zeros(pad, bool)])
-    padded = jnp.concatenate([points, jnp.zeros((pad, 3), points.dtype)])
-    lo = jnp.min(jnp.where(real[:, None], padded, jnp.inf), axis=0)
-    hi = jnp.max(jnp.where(real[:, None], padded, -jnp.inf), axis=0)
-    span = jnp.where(hi > lo, hi - lo, 1.0)
-    q = jnp.clip(jnp.floor((padded - jnp.where(jnp.isfinite(lo), lo, 0.0)) / span * 1023.0), 0, 1023)
-    code = _spread_bits(q[:, 0]) | (_spread_bits(q[:, 1]) << 1) | (_spread_bits(q[:, 2]) << 2)
-    code = jnp.where(real, code, jnp.uint32(1 << 30))  # after every 30-bit code
-    order = jnp.argsort(code, stable=True)
-    index = jnp.minimum(index[order], n - 1).reshape(-1, size)
-    valid = real[order].reshape(-1, size)
-    member = padded[order].reshape(-1, size, 3)
-    g_lo = jnp.min(jnp.where(valid[..., None], member, jnp.inf), axis=1)
-    g_hi = jnp.max(jnp.where(valid[..., None], member, -jnp.inf), axis=1)
-    any_valid = jnp.any(valid, axis=1)
-    centre = jnp.where(any_valid[:, None], 0.5 * (g_lo + g_hi), 0.0)
-    reach = jnp.sqrt(jnp.sum((member - centre[:, None]) ** 2, axis=-1))
-    radius = jnp.max(jnp.where(valid, reach, -jnp.inf), axis=1)
-    return index, valid, centre, radius
-
-
-def _tree_min(x: jnp.ndarray, axis: int) -> jnp.ndarray:
-    """Minimum over ``axis`` by halving with element-wise ``minimum`` (the axis is dropped).
-
-    XLA's CPU reductions do not vectorise a computation fused into them: a
-    ``min`` over the bounds of every (link, group) pair ran many times slower
-    than the bounds themselves. Element-wise minimums of halves do vectorise.
-    """
-    while x.shape[axis] > 1:
-        half = x.shape[axis] // 2
-        low = jax.lax.slice_in_dim(x, 0, half, axis=axis)
-        high = jax.lax.slice_in_dim(x, half, 2 * half, axis=axis)
-        odd = jax.lax.slice_in_dim(x, 2 * half, x.shape[axis], axis=axis)
-        x = jnp.concatenate([jnp.minimum(low, high), odd], axis=axis)
-    return jax.lax.index_in_dim(x, 0, axis=axis, keepdims=False)
-
-
-def _bitonic_sort(x: jnp.ndarray) -> jnp.ndarray:
-    """Ascending sort along the last axis (its length a power of two) by a bitonic network:
-    element-wise minimums and maximums only (see :func:`_tree_min` for why)."""
-    n = x.shape[-1]
-    size = 2
-    while size <= n:
-        stride = size // 2
-        while stride >= 1:
-            pairs = x.reshape(x.shape[:-1] + (n // (2 * stride), 2, stride))
-            a, b = pairs[..., 0, :], pairs[..., 1, :]
-            lo, hi = jnp.minimum(a, b), jnp.maximum(a, b)
-            first = np.arange(n).reshape(n // (2 * stride), 2, stride)[:, 0, :]
-            down = (first & size) != 0  # this pair sorts descending (a constant)
-            x = jnp.stack([jnp.where(down, hi, lo), jnp.where(down, lo, hi)], axis=-2).reshape(x.shape)
-            stride //= 2
-        size *= 2
-    return x
-
-
-def block_smallest(values: jnp.ndarray, k: int, offset, blocks: int) -> tuple[jnp.ndarray, jnp.ndarray]:
-    """Per row, k of the smallest entries: the k smallest of the winners of ``blocks`` strided blocks.
-
-    Entry e belongs to block ``e mod blocks``; only each block's smallest
-    entry (its winner) competes for the k places. The row's smallest entry is
-    always kept, the next ones unless they share a block with a smaller one
-    (with 4k blocks, about one of the k smallest in ten is lost).
-
-    Args:
-      values: (..., n) bounds; non-finite entries rank last.  k: entries kept (<= blocks).
-      offset: bounds ``-values`` from above (a Python or traced scalar).  blocks: >= k.
-    Returns:
-      positions (..., k) int32 in [0, n), smallest first, and found (..., k) bool (False: a
-      non-finite entry or padding; its position is then arbitrary).
-
-    Unlike :func:`smallest` (k passes of ``min`` over the whole row) it uses
-    element-wise minimums and maximums only: the winners by halving
-    (:func:`_tree_min`), the k places by a bitonic network over the winners
-    (:func:`_bitonic_sort`). XLA's CPU reductions do not vectorise a
-    computation fused into them; element-wise operations do.
-    """
-    n = values.shape[-1]
-    if k >= n:
-        return jnp.broadcast_to(jnp.arange(n, dtype=jnp.int32), values.shape[:-1] + (n,)), jnp.isfinite(values)
-    keys, low = _pack(values, offset)
-    if blocks < n:
-        pad = jnp.full(keys.shape[:-1] + ((-n) % blocks,), 2e30, jnp.float32)
-        keys = _tree_min(jnp.concatenate([keys, pad], axis=-1).reshape(keys.shape[:-1] + (-1, blocks)), axis=-2)
-    width = 1 << (keys.shape[-1] - 1).bit_length()
-    pad = jnp.full(keys.shape[:-1] + (width - keys.shape[-1],), 2e30, jnp.float32)
-    keys = _bitonic_sort(jnp.concatenate([keys, pad], axis=-1))[..., :k]
-    pos = jax.lax.bitcast_convert_type(keys, jnp.int32) & low
-    return jnp.minimum(pos, n - 1), keys < 0.5e30  # packing moves 1e30 by a few units in the last place
-
-
-def group_pairs(xyz, radius, centre, g_radius, n_pairs: int, segments: int, offset):
-    """Selection ``state``, stage 1: ``n_pairs`` (link, group) pairs of every rollout state with
-    small ``LB(g, m) = min_s dist(centre[g], [a_s, b_s]) - radius[g] - R_m``.
-
-    Pairs are ordered group-major (``group * M + link``); the k smallest of the
-    winners of ``BLOCKS * n_pairs`` strided blocks are kept (:func:`block_smallest`).
-
-    Args:
-      xyz: 3 arrays (N, H, M, S + 1): capsule backbone points; radius: (N, H, M) capsule radii.
-      centre: (G, 3), g_radius: (G,) the groups' spheres (-inf radius: empty group).
-      offset: bounds ``-LB`` from above.
-    Returns:
-      link (N, H, C), group (N, H, C) and found (N, H, C) bool.
-    """
-    n_links = xyz[0].shape[-2]
-    p = tuple(centre[:, i][:, None] for i in range(3))  # (G, 1)
-    d = _capsule_distance(p, tuple(c[..., None, :, :] for c in xyz), segments)  # (N, H, G, M)
-    lb = jnp.where(jnp.isfinite(g_radius)[:, None], d - g_radius[:, None] - radius[..., None, :], jnp.inf)
-    pos, found = block_smallest(lb.reshape(lb.shape[:2] + (-1,)), n_pairs, offset, BLOCKS * n_pairs)
-    return pos % n_links, pos // n_links, found
-
-
-def group_points(xyz, radius, link, group, found, index, valid, members, k2: int, segments: int, offset):
-    """Selection ``state``, stage 2: the k2 (link, point) pairs of every rollout state with small
-    ``LB(p, m)`` among the points of its selected groups (:func:`block_smallest`, ``BLOCKS * k2`` blocks).
-
-    Args:
-      xyz, radius: as :func:`group_pairs`.  link, group, found: (N, H, C) its result.
-      index, valid: (G, B) of :func:`cloud_groups`; members: 3 arrays (G, B), the groups' points.
-    Returns:
-      link (N, H, k2) and point index (N, H, k2) of the selected pairs, and ok (N, H, k2) bool.
-    """
-    size = index.shape[1]
-    p = tuple(m[group] for m in members)  # (N, H, C, B)
-    ends = tuple(jnp.take_along_axis(c, link[..., None], axis=2)[..., None, :] for c in xyz)  # (N, H, C, 1, S + 1)
-    d = _capsule_distance(p, ends, segments) - jnp.take_along_axis(radius, link, axis=2)[..., None]
-    d = jnp.where(valid[group] & found[..., None], d, jnp.inf)
-    pos, ok = block_smallest(d.reshape(d.shape[:2] + (-1,)), k2, offset, BLOCKS * k2)  # (N, H, k2)
-    slot, member = pos // size, pos % size
-    chosen = jnp.take_along_axis(group, slot, axis=-1)
-    return jnp.take_along_axis(link, slot, axis=-1), index[chosen, member], ok
-
-
-def rollout_min_distances_broad(shape, arcs, points, mask, k1: int, k2: int, segments: int, frames=None,
-                                selection: str = "mean", groups: int = 32, group_size: int = 16):
+def rollout_min_distances_broad(shape, arcs, points, mask, k1: int, k2: int, segments: int, frames=None):
     """Per-state minimum distance by the broad phase.
 
     Args:
@@ -441,35 +245,19 @@ def rollout_min_distances_broad(shape, arcs, points, mask, k1: int, k2: int, seg
       arcs: (N, H, M, 3) rollout states.  points: (P, 3); mask: (P,) bool.
       k1, k2, segments: see the module docstring (clamped to the point count).
       frames: (N, H, M + 1, 4, 4) forward kinematics of ``arcs`` if already computed.
-      selection: ``"mean"`` or ``"state"`` (module docstring); ``groups`` (C) and
-        ``group_size`` (B) are the sizes of ``"state"``, ``k1`` that of ``"mean"``.
     Returns:
       (N, H) minimum distance of each state, m (+inf if every point is masked).
     """
-    if selection not in SELECTIONS:
-        raise ValueError(f"selection must be one of {', '.join(SELECTIONS)}, got {selection!r}")
     spec = shape.spec
-    n_points = points.shape[0]
-    n_links = arcs.shape[-2]
+    k1 = max(1, min(k1, points.shape[0]))
+    k2 = max(1, min(k2, arcs.shape[-2] * k1))
     if frames is None:
         frames = forward_kinematics(arcs, spec)
     xyz, radius = capsule_points(arcs, frames, spec, segments)  # 3 x (N, H, M, S + 1), (N, H, M)
-    if selection == "mean":
-        k1 = max(1, min(k1, n_points))
-        k2 = max(1, min(k2, n_links * k1))
-        idx = stage_one(xyz, points, mask, k1, segments)  # (H, M, K1)
-        link, pidx = stage_two(xyz, radius, idx, points, mask, k2, segments, spec.thickest + spec.length)  # (N, H, K2)
-        ok = mask[pidx]
-    else:
-        index, valid, centre, g_radius = cloud_groups(points, mask, group_size)
-        members = tuple(points[index, i] for i in range(3))  # (G, B)
-        offset = jnp.max(jnp.where(jnp.isfinite(g_radius), g_radius, 0.0)) + spec.thickest + spec.length
-        n_pairs = max(1, min(groups, n_links * index.shape[0]))
-        link, group, found = group_pairs(xyz, radius, centre, g_radius, n_pairs, segments, offset)  # (N, H, C)
-        link, pidx, ok = group_points(xyz, radius, link, group, found, index, valid, members,
-                                      max(1, min(k2, n_pairs * group_size)), segments, offset)  # (N, H, K2)
+    idx = stage_one(xyz, points, mask, k1, segments)  # (H, M, K1)
+    link, pidx = stage_two(xyz, radius, idx, points, mask, k2, segments, spec.thickest + spec.length)  # (N, H, K2)
     d = shape.state_pair_distances(arcs, frames, points[pidx], link)  # (N, H, K2)
-    return jnp.min(jnp.where(ok, d, jnp.inf), axis=-1)
+    return jnp.min(jnp.where(mask[pidx], d, jnp.inf), axis=-1)
 
 
 def rollout_min_distances_brute(shape, arcs, points, mask):
@@ -491,4 +279,4 @@ def rollout_min_distances(broad: BroadPhase | None, shape, arcs, points, mask, f
     if broad is None:
         return rollout_min_distances_brute(shape, arcs, points, mask)
     return rollout_min_distances_broad(shape, arcs, points, mask, broad.k1, broad.k2, broad.capsule_segments,
-                                       frames, broad.selection, broad.groups, broad.group_size)
+                                       frames)

@@ -7,6 +7,12 @@ rebuilds its episode. The experiments that were removed with the switchboard
 margin, a zero-filled shift, an unlimited action) have no stage: a recording
 that used one is refused with a message naming it.
 
+The broad phase's second selection, ``state`` (candidates per rollout state from
+groups of the cloud; no preset used it), was removed on 2026-12-07: its fields
+(``selection``, ``groups``, ``group_size``) are dropped from a recording of
+either form that used the other, ``mean``, and a recording that used it is refused
+(:func:`broad_phase_fields`).
+
 The route planner of recordings made before 2026-12-02 found its goal states
 by gradient steps (``goal_step``, 400 ``goal_iterations``); today's planner
 finds them by damped least squares, and such a recording rebuilds with today's
@@ -35,12 +41,23 @@ DEFAULTS = {
 }
 #: Removed experiments: (field, the value that meant off).
 REMOVED = (("predict_motion", False), ("fill_edge", 0.0), ("hold_time", 0.0), ("check_margin", 0.0),
-           ("shift_fill", "last"), ("limit_action", True))
+           ("shift_fill", "last"), ("limit_action", True), ("selection", "mean"))
+#: The removed broad-phase selection's fields, and the selection every recording kept may have named.
+BROAD_REMOVED, BROAD_SELECTION = ("selection", "groups", "group_size"), "mean"
 #: The core's fields under their flat names.
 CORE = {name: name for name in ("samples", "horizon", "covariance", "alpha_u", "w_goal", "w_coll", "w_state",
                                 "w_goal_terminal", "w_coll_terminal", "w_perturbation", "goal_reach",
                                 "safety_margin", "epsilon", "control_bound", "dt", "max_points")}
 CORE["progress"] = "stall_progress"
+
+
+def broad_phase_fields(data: dict) -> dict:
+    """A recording's broad-phase fields less those of the removed selection (module docstring);
+    ValueError where the recording used it."""
+    if data.get("selection", BROAD_SELECTION) != BROAD_SELECTION:
+        raise ValueError(f"this recording's controller used the broad phase's selection {data['selection']!r}, "
+                         "an experiment that was removed")
+    return {name: value for name, value in data.items() if name not in BROAD_REMOVED}
 
 
 def legacy_config(flat: dict):
@@ -62,8 +79,7 @@ def legacy_config(flat: dict):
         route.pop("goal_iterations", None)
     escape = StallEscape(f["stall_steps"], f["stall_ess"]) if f["stall_steps"] else None
     temperature = Fixed(f["temperature"]) if f["target_ess"] is None else EffectiveSampleSize(f["target_ess"], escape)
-    broad = (BroadPhase(f["k1"], f["k2"], f["capsule_segments"], f["selection"], f["groups"], f["group_size"])
-             if f["broad_phase"] else None)
+    broad = BroadPhase(f["k1"], f["k2"], f["capsule_segments"]) if f["broad_phase"] else None
     recovery = RouteRecovery(f["route_after"], route=route) if f["route_after"] else None
     return ControllerConfig(
         mppi=MPPIConfig(**{new: f[old] for new, old in CORE.items() if old in f}),

@@ -1,15 +1,13 @@
 """MPPI controller: validation, projection, determinism, compilation, closed loop."""
 
 import dataclasses
-import functools
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from ncedf.broad_phase import (BroadPhase, block_smallest, cloud_groups, rollout_min_distances_broad,
-                                rollout_min_distances_brute)
+from ncedf.broad_phase import BroadPhase, rollout_min_distances_broad, rollout_min_distances_brute
 from ncedf.controller import Controller, ControllerConfig
 from ncedf.geometry import robot_signed_distance
 from ncedf.mppi import MPPIConfig, mppi_step
@@ -42,8 +40,7 @@ def exact_mppi():
      (EffectiveSampleSize, "escape", 30), (StallEscape, "after", 0), (StallEscape, "target", 2.0),
      (Sampling, "kind", "nearest"), (Sampling, "smoothing", 1.0), (Sampling, "clip", 0.0),
      (Sampling, "unclipped", "yes"), (SafetyFilter, "substeps", 0), (SafetyFilter, "sweep_first", 1),
-     (BroadPhase, "k1", 0), (BroadPhase, "selection", "nearest"), (BroadPhase, "groups", 0),
-     (BroadPhase, "group_size", 1.5)],
+     (BroadPhase, "k1", 0), (BroadPhase, "k2", 1.5), (BroadPhase, "capsule_segments", 0)],
 )
 def test_bad_config_values_are_rejected(stage, field, value):
     with pytest.raises(ValueError, match=f"{stage.__name__}.{field}"):
@@ -168,62 +165,6 @@ def test_broad_phase_matches_brute_force_on_exact_geometry():
 def _box_surface_cloud(centre, size, density, seed):
     """A box's faces observed as a scenario observes them: ``round(density * area)`` uniform points per face."""
     return make_observer(World(boxes=(Box(centre, size),), density=density), seed).observe(0.0)
-
-
-def test_state_selection_keeps_the_nearest_points_of_spread_rollouts_beside_a_dense_cloud():
-    """Wide rollouts beside a densely observed box (16 points per m^2): the nearest points of the
-    rollouts far from the average lie far from the points nearest to the average rollout."""
-    shape = make_shape("exact", SPEC)
-    cloud = _box_surface_cloud((1.3, 0.0, 5.0), (0.8, 3.0, 4.0), 16.0, seed=0)
-    pts = jnp.asarray(np.concatenate([cloud, np.zeros((32, 3))]), jnp.float32)  # 32 masked points
-    mask = jnp.arange(len(pts)) < len(cloud)
-    u = project_controls(0.6 * jax.random.normal(jax.random.PRNGKey(5), (64, 12, 4, 3)), 0.3)
-    arcs = SPEC.straight_state() + 0.05 * jnp.cumsum(u, axis=1)
-    c = BroadPhase()
-
-    @jax.jit
-    def all_three(a):
-        broad = functools.partial(rollout_min_distances_broad, shape, a, pts, mask, c.k1, c.k2, c.capsule_segments,
-                                  groups=c.groups, group_size=c.group_size)
-        return rollout_min_distances_brute(shape, a, pts, mask), broad(selection="state"), broad(selection="mean")
-
-    bf, state, mean = map(np.asarray, all_three(arcs))
-    assert bf.min() < 0 < bf.max()  # some rollouts enter the box
-    over_state, over_mean = np.mean(state - bf > 0.02), np.mean(mean - bf > 0.02)
-    assert np.mean(np.abs(state - bf) <= 1e-5) >= 0.99
-    assert over_state <= 0.005
-    assert over_mean > 5 * over_state  # the per-step selection around the average misses them
-    assert np.all(state >= bf - 1e-5) and np.all(mean >= bf - 1e-5)  # a subset never finds a nearer point
-
-
-def test_block_smallest_keeps_the_row_minimum_and_is_exact_with_a_block_per_entry():
-    rng = np.random.default_rng(4)
-    values = (0.25 * rng.permuted(np.tile(np.arange(37), (50, 1)), axis=1) - 4.0).astype(np.float32)  # no near ties
-    values[0, :30] = np.inf  # fewer finite entries than places
-    exact, found = map(np.asarray, block_smallest(jnp.asarray(values), 8, 10.0, blocks=37))
-    np.testing.assert_array_equal(exact[1:], np.argsort(values[1:], axis=-1)[:, :8])
-    assert found[0].sum() == 7 and found[1:].all()
-    blocked, _ = map(np.asarray, block_smallest(jnp.asarray(values), 8, 10.0, blocks=16))
-    np.testing.assert_array_equal(blocked[:, 0], np.argmin(values, axis=-1))
-    kept = np.take_along_axis(values, blocked, axis=-1)
-    assert np.all(np.diff(kept[1:], axis=-1) > 0)  # smallest first
-    winners = np.stack([np.min(np.where(np.arange(37) % 16 == b, values, np.inf), axis=-1) for b in range(16)], -1)
-    np.testing.assert_array_equal(kept[1:], np.sort(winners, axis=-1)[1:, :8])  # the 8 best block winners
-
-
-def test_cloud_groups_hold_every_real_point_once_within_their_spheres():
-    rng = np.random.default_rng(3)
-    pts = _box_surface_cloud((0.0, 0.0, 0.0), (2.0, 3.0, 1.0), 30.0, seed=3)
-    mask = rng.random(len(pts)) > 0.1
-    index, valid, centre, radius = map(np.asarray, cloud_groups(jnp.asarray(pts, jnp.float32), jnp.asarray(mask), 16))
-    assert index.shape == (-(-len(pts) // 16), 16)
-    np.testing.assert_array_equal(np.sort(index[valid]), np.flatnonzero(mask))
-    reach = np.linalg.norm(pts[index] - centre[:, None], axis=-1)
-    assert np.all(reach[valid] <= np.broadcast_to(radius[:, None], reach.shape)[valid] + 1e-5)
-    # The groups are local: far smaller spheres than groups of 16 points drawn at random.
-    shuffled = rng.permutation(np.flatnonzero(mask))[: (mask.sum() // 16) * 16].reshape(-1, 16)
-    spread = np.linalg.norm(pts[shuffled] - pts[shuffled].mean(axis=1, keepdims=True), axis=-1).max(axis=1)
-    assert np.median(radius[np.isfinite(radius)]) < 0.5 * np.median(spread)
 
 
 _clearance = jax.jit(lambda p, a: jnp.min(robot_signed_distance(p, a, SPEC)))

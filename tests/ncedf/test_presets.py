@@ -54,6 +54,22 @@ def test_bad_metadata_is_named():
         "ours", RobotSpec(4), Observation(10))
 
 
+def test_recordings_made_with_the_broad_phases_removed_selection_fields_read_back_or_are_refused():
+    """Recordings made before 2026-12-07 name the broad phase's selection and its second one's sizes:
+    with the selection every preset used they are today's controller; with the removed one, refused."""
+    config = preset("ours", RobotSpec(4), Observation(10))
+    meta = config_to_dict(config)
+    then = {**meta["broad_phase"], "selection": "mean", "groups": 32, "group_size": 16}
+    assert config_from_dict({**meta, "broad_phase": then}) == config
+    with pytest.raises(ValueError, match="selection 'state'.*removed"):
+        config_from_dict({**meta, "broad_phase": {**then, "selection": "state"}})
+    flat = {"samples": 8, "temperature": 0.02}
+    assert config_from_dict({**flat, "selection": "mean", "groups": 8}).broad_phase == BroadPhase(k2=12,
+                                                                                                 capsule_segments=2)
+    with pytest.raises(ValueError, match="selection='state'.*removed"):
+        config_from_dict({**flat, "selection": "state"})
+
+
 @pytest.mark.parametrize("name", ["paper", "release"])
 def test_flat_settings_of_old_recordings_are_the_presets_of_today(name):
     """The flat settings the release and paper presets wrote before the stages (their non-default fields),
