@@ -41,7 +41,7 @@ import numpy as np
 from ncedf.broad_phase import BroadPhase
 from ncedf.grid_model import GridModel
 from ncedf.guide import Guide
-from ncedf.legacy import broad_phase_fields
+from ncedf.legacy import broad_phase_fields, recovery_fields
 from ncedf.mppi import MPPIConfig, MPPIInfo, MPPIState, init_state, mppi_step
 from ncedf.obstacle_model import ConvexModel
 from ncedf.recovery import RouteRecovery, RouteState, no_route, plan_due, supervise
@@ -302,6 +302,8 @@ def _stage(name: str, data):
         data["escape"] = _build(StallEscape, data["escape"], "escape")
     if name == "broad_phase":
         data = broad_phase_fields(data)
+    if name == "recovery":
+        data = recovery_fields(data)
     return _build(kind, data, name)
 
 

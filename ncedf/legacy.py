@@ -13,6 +13,10 @@ groups of the cloud; no preset used it), was removed on 2026-12-07: its fields
 either form that used the other, ``mean``, and a recording that used it is refused
 (:func:`broad_phase_fields`).
 
+Recordings made before 2026-12-07 planned every route of an episode with the
+same settings: their route recovery reads back with ``growth`` 1
+(:func:`recovery_fields`).
+
 The route planner of recordings made before 2026-12-02 found its goal states
 by gradient steps (``goal_step``, 400 ``goal_iterations``); today's planner
 finds them by damped least squares, and such a recording rebuilds with today's
@@ -60,6 +64,11 @@ def broad_phase_fields(data: dict) -> dict:
     return {name: value for name, value in data.items() if name not in BROAD_REMOVED}
 
 
+def recovery_fields(data: dict) -> dict:
+    """A recording's route-recovery fields, ``growth`` 1 where it names none (module docstring)."""
+    return {"growth": 1.0, **data}
+
+
 def legacy_config(flat: dict):
     """The :class:`ncedf.controller.ControllerConfig` of a recording's flat settings."""
     from ncedf.controller import ControllerConfig
@@ -80,7 +89,8 @@ def legacy_config(flat: dict):
     escape = StallEscape(f["stall_steps"], f["stall_ess"]) if f["stall_steps"] else None
     temperature = Fixed(f["temperature"]) if f["target_ess"] is None else EffectiveSampleSize(f["target_ess"], escape)
     broad = BroadPhase(f["k1"], f["k2"], f["capsule_segments"]) if f["broad_phase"] else None
-    recovery = RouteRecovery(f["route_after"], route=route) if f["route_after"] else None
+    recovery = (RouteRecovery(**recovery_fields({"after": f["route_after"], "route": route}))
+                if f["route_after"] else None)
     return ControllerConfig(
         mppi=MPPIConfig(**{new: f[old] for new, old in CORE.items() if old in f}),
         sampling=Sampling(f["sampling"], f["noise_smoothing"], f["noise_clip"], f["update_unclipped"]),

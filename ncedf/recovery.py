@@ -5,7 +5,9 @@ goal right behind a box) every rollout's goal cost says stay, and the robot
 stalls. :func:`supervise` runs around the jitted MPPI step, the way a brax
 wrapper runs around an environment's step: when the core's stall count reaches
 ``after`` + 1, and again every ``after`` steps while it grows (at most
-``tries`` plans per episode), it plans a route from the current state round
+``tries`` plans per episode, each drawing ``growth`` times the roadmap states and
+tree rounds of the one before: where a roadmap held no route the next searches
+more), it plans a route from the current state round
 the obstacle model's static polytopes (``ncedf.route``; the moving ones are
 left out) or its grid, unless the model left a static cluster out as not convex (the
 roadmap would not see that obstacle). Its goal states arrive along the goal's
@@ -37,7 +39,7 @@ from ncedf.guide import approach
 from ncedf.mppi import MPPIState
 from ncedf.obstacle_model import left_out, static_part
 from ncedf.robot import BASE, RobotSpec
-from ncedf.route import RouteConfig, plan_route
+from ncedf.route import RouteConfig, grown, plan_route
 from ncedf.validate import check_fields, nested
 
 #: Route states kept (a longer route is thinned evenly).
@@ -49,15 +51,17 @@ ROUTE_SALT = 0x726F7574
 @dataclasses.dataclass(frozen=True)
 class RouteRecovery:
     """A route after ``after`` steps without progress, at most ``tries`` per episode; ``route``:
-    the planner's settings (``ncedf.route.RouteConfig``, or its fields as a dict, as a
-    recording's metadata holds them)."""
+    the first plan's settings (``ncedf.route.RouteConfig``, or its fields as a dict, as a
+    recording's metadata holds them), each later plan's with ``growth`` times the roadmap
+    states and tree rounds of the one before (``ncedf.route.grown``)."""
 
     after: int = 30
     tries: int = 3
     route: RouteConfig = RouteConfig()
+    growth: float = 2.0
 
     def __post_init__(self):
-        check_fields(self, integers=("after", "tries"))
+        check_fields(self, integers=("after", "tries"), positive=("growth",))
         nested(self, "route", RouteConfig)
 
 
@@ -97,8 +101,9 @@ def start_route(recovery: RouteRecovery, spec: RobotSpec, route: RouteState, mpp
         goal, direction = goal[:3, 3], goal[:3, 2]
     else:
         direction = None if guide is None else approach(guide, BASE, goal, recovery.route.approach_back)
-    path = plan_route(spec, static_part(model), arc, goal, jax.random.fold_in(mppi.key, ROUTE_SALT),
-                      recovery.route, direction, aligned_only=pose)
+    config = grown(recovery.route, recovery.growth**route.routes)
+    path = plan_route(spec, static_part(model), arc, goal, jax.random.fold_in(mppi.key, ROUTE_SALT), config,
+                      direction, aligned_only=pose)
     if path is None:  # the stall count goes on, and with it the stall escape
         return route._replace(routes=route.routes + 1), mppi
     keep = np.unique(np.linspace(0, len(path) - 1, ROUTE_CAPACITY).round().astype(int))

@@ -184,6 +184,12 @@ class RouteConfig:
                                "path_step"))
 
 
+def grown(config: RouteConfig, factor: float) -> RouteConfig:
+    """``config`` with ``factor`` times its roadmap's random states and its tree's rounds (rounded)."""
+    return dataclasses.replace(config, samples=max(1, round(config.samples * factor)),
+                               bridge=dataclasses.replace(config.bridge, rounds=max(1, round(config.bridge.rounds * factor))))
+
+
 @functools.partial(jax.jit, static_argnums=1)
 def _clearance(arcs: jnp.ndarray, spec: RobotSpec, polytopes: Polytopes) -> jnp.ndarray:
     """(PASS,) clearance of (PASS, M, 3) states to the polytopes, m."""

@@ -70,6 +70,16 @@ def test_recordings_made_with_the_broad_phases_removed_selection_fields_read_bac
         config_from_dict({**flat, "selection": "state"})
 
 
+def test_recordings_made_before_the_plans_grew_plan_every_route_alike():
+    """A route recovery whose metadata names no growth (recordings before 2026-12-07) reads back with
+    growth 1: every plan with the first one's settings, as it ran."""
+    config = preset("ours", RobotSpec(4), Observation(10))
+    meta = config_to_dict(config)
+    assert meta["recovery"]["growth"] == config.recovery.growth > 1
+    then = {k: v for k, v in meta["recovery"].items() if k != "growth"}
+    assert config_from_dict({**meta, "recovery": then}).recovery == dataclasses.replace(config.recovery, growth=1.0)
+
+
 @pytest.mark.parametrize("name", ["paper", "release"])
 def test_flat_settings_of_old_recordings_are_the_presets_of_today(name):
     """The flat settings the release and paper presets wrote before the stages (their non-default fields),

@@ -534,6 +534,8 @@ def test_route_settings_are_validated():
         RouteRecovery(after=-1)
     with pytest.raises(ValueError, match="RouteRecovery.route"):
         RouteRecovery(route=5)
+    with pytest.raises(ValueError, match="RouteRecovery.growth"):
+        RouteRecovery(growth=0.0)
     with pytest.raises(ValueError, match="RouteConfig.samples"):
         RouteConfig(samples=0)
     with pytest.raises(ValueError, match="RouteConfig.lazy_rounds"):
@@ -634,3 +636,25 @@ def test_a_position_goals_route_arrives_along_the_free_path_from_the_base(monkey
     mppi = MPPIState(*[None] * len(MPPIState._fields))._replace(key=jax.random.PRNGKey(0))
     start_route(RouteRecovery(), spec, no_route(spec), mppi, np.asarray(stalled), goal, grid, field)
     assert asked[0] @ np.array([1.0, 0.0, 0.0]) > 0.9
+
+
+def test_each_later_plan_of_an_episode_searches_a_larger_roadmap_and_tree(monkeypatch):
+    """Where a plan found no route, the next draws ``growth`` times its roadmap states and tree rounds;
+    its other settings are the first plan's."""
+    from ncedf.mppi import MPPIState
+    from ncedf.recovery import no_route, start_route
+
+    asked = []
+    monkeypatch.setattr("ncedf.recovery.plan_route", lambda *args, **kwargs: asked.append(args[5]))
+    box = np.random.default_rng(0).uniform([2.0, -0.5, 1.0], [2.5, 0.5, 2.0], (200, 3)).astype(np.float32)
+    mask = np.ones(len(box), bool)
+    model = ConvexModel(1.0).fit(box, mask, box, mask, 0.05)
+    mppi = MPPIState(*[None] * len(MPPIState._fields))._replace(key=jax.random.PRNGKey(0))
+    recovery, route = RouteRecovery(growth=3.0, route=LIFT), no_route(SPEC)
+    for _ in range(3):
+        route, _ = start_route(recovery, SPEC, route, mppi, START, GOAL, model)
+    assert route.routes == 3 and len(route.states) == 0
+    assert [c.samples for c in asked] == [LIFT.samples, 3 * LIFT.samples, 9 * LIFT.samples]
+    assert [c.bridge.rounds for c in asked] == [LIFT.bridge.rounds, 3 * LIFT.bridge.rounds, 9 * LIFT.bridge.rounds]
+    first = dataclasses.replace(asked[2], samples=LIFT.samples, bridge=LIFT.bridge)
+    assert first == LIFT
