@@ -5,10 +5,9 @@ goal right behind a box) every rollout's goal cost says stay, and the robot
 stalls. :func:`supervise` runs around the jitted MPPI step, the way a brax
 wrapper runs around an environment's step: when the core's stall count reaches
 ``after`` + 1, and again every ``after`` steps while it grows (at most
-``tries`` plans per episode, each drawing ``growth`` times the roadmap states and
-tree rounds of the one before: where a roadmap held no route the next searches
-more), it plans a route from the current state round
-the obstacle model's static polytopes (``ncedf.route``; the moving ones are
+``tries`` plans per episode; after each plan that found no route the next
+draws ``growth`` times the roadmap states and tree rounds), it plans a route
+from the current state round the obstacle model's static polytopes (``ncedf.route``; the moving ones are
 left out) or its grid, unless the model left a static cluster out as not convex (the
 roadmap would not see that obstacle). Its goal states arrive along the goal's
 approach axis where the goal is a pose, else, with the guide's field, along the
@@ -52,8 +51,8 @@ ROUTE_SALT = 0x726F7574
 class RouteRecovery:
     """A route after ``after`` steps without progress, at most ``tries`` per episode; ``route``:
     the first plan's settings (``ncedf.route.RouteConfig``, or its fields as a dict, as a
-    recording's metadata holds them), each later plan's with ``growth`` times the roadmap
-    states and tree rounds of the one before (``ncedf.route.grown``)."""
+    recording's metadata holds them); a later plan draws ``growth`` times the roadmap states
+    and tree rounds for each plan before it that found no route (``ncedf.route.grown``)."""
 
     after: int = 30
     tries: int = 3
@@ -67,12 +66,14 @@ class RouteRecovery:
 
 class RouteState(NamedTuple):
     """The route being followed: its states (K, M, 3) m (K = 0: none), the index of the last one
-    reached, the routes planned so far, and the steps in a row its next move was refused."""
+    reached, the plans so far, the steps in a row its next move was refused, and the plans so far
+    that found no route."""
 
     states: np.ndarray
     at: int
     routes: int
     blocked: int = 0
+    failed: int = 0
 
 
 def no_route(spec: RobotSpec) -> RouteState:
@@ -101,13 +102,13 @@ def start_route(recovery: RouteRecovery, spec: RobotSpec, route: RouteState, mpp
         goal, direction = goal[:3, 3], goal[:3, 2]
     else:
         direction = None if guide is None else approach(guide, BASE, goal, recovery.route.approach_back)
-    config = grown(recovery.route, recovery.growth**route.routes)
+    config = grown(recovery.route, recovery.growth**route.failed)
     path = plan_route(spec, static_part(model), arc, goal, jax.random.fold_in(mppi.key, ROUTE_SALT), config,
                       direction, aligned_only=pose)
     if path is None:  # the stall count goes on, and with it the stall escape
-        return route._replace(routes=route.routes + 1), mppi
+        return route._replace(routes=route.routes + 1, failed=route.failed + 1), mppi
     keep = np.unique(np.linspace(0, len(path) - 1, ROUTE_CAPACITY).round().astype(int))
-    return RouteState(path[keep].astype(np.float32), 0, route.routes + 1), _fresh_progress(mppi)
+    return RouteState(path[keep].astype(np.float32), 0, route.routes + 1, failed=route.failed), _fresh_progress(mppi)
 
 
 def route_move(route: RouteState, arc: np.ndarray, control_bound: float, dt: float) -> tuple[np.ndarray, int]:
@@ -151,5 +152,5 @@ def supervise(recovery: RouteRecovery, spec: RobotSpec, check_moves, margin: flo
             mppi = _fresh_progress(mppi)
         return moves[0], route._replace(at=reached, blocked=0), mppi
     if route.blocked + 1 >= recovery.after:  # given up: MPPI steers, the stall count goes on
-        return action, no_route(spec)._replace(routes=route.routes), mppi
+        return action, no_route(spec)._replace(routes=route.routes, failed=route.failed), mppi
     return (moves[1] if clear[1] >= margin else action), route._replace(blocked=route.blocked + 1), mppi

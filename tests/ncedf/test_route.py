@@ -638,23 +638,22 @@ def test_a_position_goals_route_arrives_along_the_free_path_from_the_base(monkey
     assert asked[0] @ np.array([1.0, 0.0, 0.0]) > 0.9
 
 
-def test_each_later_plan_of_an_episode_searches_a_larger_roadmap_and_tree(monkeypatch):
-    """Where a plan found no route, the next draws ``growth`` times its roadmap states and tree rounds;
-    its other settings are the first plan's."""
+def test_after_each_plan_that_found_no_route_the_next_searches_a_larger_roadmap_and_tree(monkeypatch):
+    """A plan after k plans that found no route draws ``growth`` ** k times the first plan's roadmap states
+    and tree rounds; a plan that found one grows nothing; the other settings are the first plan's."""
     from ncedf.mppi import MPPIState
     from ncedf.recovery import no_route, start_route
 
-    asked = []
-    monkeypatch.setattr("ncedf.recovery.plan_route", lambda *args, **kwargs: asked.append(args[5]))
+    asked, found = [], iter([None, None, START[None].repeat(3, axis=0), None])
+    monkeypatch.setattr("ncedf.recovery.plan_route", lambda *args, **kwargs: asked.append(args[5]) or next(found))
     box = np.random.default_rng(0).uniform([2.0, -0.5, 1.0], [2.5, 0.5, 2.0], (200, 3)).astype(np.float32)
     mask = np.ones(len(box), bool)
     model = ConvexModel(1.0).fit(box, mask, box, mask, 0.05)
-    mppi = MPPIState(*[None] * len(MPPIState._fields))._replace(key=jax.random.PRNGKey(0))
+    mppi = MPPIState(*[None] * 4)._replace(key=jax.random.PRNGKey(0), stalled=jnp.asarray(0), best_goal=jnp.asarray(0.0))
     recovery, route = RouteRecovery(growth=3.0, route=LIFT), no_route(SPEC)
-    for _ in range(3):
+    for _ in range(4):
         route, _ = start_route(recovery, SPEC, route, mppi, START, GOAL, model)
-    assert route.routes == 3 and len(route.states) == 0
-    assert [c.samples for c in asked] == [LIFT.samples, 3 * LIFT.samples, 9 * LIFT.samples]
-    assert [c.bridge.rounds for c in asked] == [LIFT.bridge.rounds, 3 * LIFT.bridge.rounds, 9 * LIFT.bridge.rounds]
-    first = dataclasses.replace(asked[2], samples=LIFT.samples, bridge=LIFT.bridge)
-    assert first == LIFT
+    assert route.routes == 4 and route.failed == 3
+    assert [c.samples for c in asked] == [LIFT.samples * f for f in (1, 3, 9, 9)]
+    assert [c.bridge.rounds for c in asked] == [LIFT.bridge.rounds * f for f in (1, 3, 9, 9)]
+    assert all(dataclasses.replace(c, samples=LIFT.samples, bridge=LIFT.bridge) == LIFT for c in asked)
