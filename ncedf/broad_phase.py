@@ -67,7 +67,6 @@ from ncedf.robot import RobotSpec, arc_sagitta, bending_vector, even_series, for
 from ncedf.validate import check_fields
 
 
-
 @dataclasses.dataclass(frozen=True)
 class BroadPhase:
     """The broad phase's sizes (module docstring).

@@ -7,8 +7,8 @@ wrapper runs around an environment's step: when the core's stall count reaches
 ``after`` + 1, and again every ``after`` steps while it grows (at most
 ``tries`` plans per episode; after each plan that found no route the next
 draws ``growth`` times the roadmap states and tree rounds), it plans a route
-from the current state round the obstacle model's static polytopes (``ncedf.route``; the moving ones are
-left out) or its grid, unless the model left a static cluster out as not convex (the
+from the current state round the obstacle model's static polytopes
+(``ncedf.route``; the moving ones are left out) or its grid, unless the model left a static cluster out as not convex (the
 roadmap would not see that obstacle). Its goal states arrive along the goal's
 approach axis where the goal is a pose, else, with the guide's field, along the
 guided path from the robot's base (``ncedf.guide.approach``): the body runs from the
