@@ -1,28 +1,26 @@
 """The recovery stage: a route round the static obstacles for a robot that MPPI leaves stuck.
 
-MPPI is local: where the way to a goal first leads away from it (a
-goal right behind a box) every rollout's goal cost says stay, and the robot
-stalls. :func:`supervise` runs around the jitted MPPI step, the way a brax
-wrapper runs around an environment's step: when the core's stall count reaches
-``after`` + 1, and again every ``after`` steps while it grows (at most
-``tries`` plans per episode; after each plan that found no route the next
-draws ``growth`` times the roadmap states and tree rounds), it plans a route
-from the current state round the obstacle model's static polytopes
-(``ncedf.route``; the moving ones are left out) or its grid, unless the model left a static cluster out as not convex (the
-roadmap would not see that obstacle). Its goal states arrive along the goal's
-approach axis where the goal is a pose, else, with the guide's field, along the
+MPPI is local: where the way to a goal first leads away from it (a goal right behind a
+box) every rollout's goal cost says stay, and the robot stalls. :func:`supervise` runs
+around the jitted MPPI step, the way a brax wrapper runs around an environment's step:
+when the core's stall count reaches ``after`` + 1, and again every ``after`` steps while
+it grows (at most ``tries`` plans per episode; after each plan that found no route the
+next draws ``growth`` times the roadmap states and tree rounds), it plans a route from
+the current state round the obstacle model's static polytopes (``ncedf.route``; the
+moving ones are left out) or its grid, unless the model left a static cluster out as not
+convex (the roadmap would not see that obstacle). Its goal states arrive along the
+goal's approach axis where the goal is a pose, else, with the guide's field, along the
 guided path from the robot's base (``ncedf.guide.approach``): the body runs from the
-base to the goal, so it arrives the way free space leads from the base, whichever
-way the stalled tip would have gone on. Where the roadmap holds
-none, nothing changes. Else it executes the
-route: each step moves to the farthest route state within one step's bound
-(or towards the next, at the bound) if that move passes the safety check,
-which sees the moving obstacles too; else it holds if holding passes, else it
-takes MPPI's own action. MPPI keeps planning underneath and takes over at the
-route's end, with a fresh stall count. A route whose next move the check refuses
-for ``after`` steps in a row is given up (its remaining states may pass the
-obstacle model's clearance but not the check's distance to the points): MPPI
-steers again and the stall count, still growing, calls the next plan.
+base to the goal, so it arrives the way free space leads from the base, whichever way
+the stalled tip would have gone on. Where the roadmap holds none, nothing changes. Else
+it executes the route: each step moves to the farthest route state within one step's
+bound (or towards the next, at the bound) if that move passes the safety check, which
+sees the moving obstacles too; else it holds if holding passes, else it takes MPPI's own
+action. MPPI keeps planning underneath and takes over at the route's end, with a fresh
+stall count. A route whose next move the check refuses for ``after`` steps in a row is
+given up (its remaining states may pass the obstacle model's clearance but not the
+check's distance to the points): MPPI steers again and the stall count, still growing,
+calls the next plan.
 """
 
 from __future__ import annotations
