@@ -43,11 +43,11 @@ DEFAULTS = {
     "convex_link": 0.0, "hold_time": 0.0, "sweep_first": False, "follow_executed": False, "route_after": 0,
     "route": {},
 }
-#: Removed experiments: (field, the value that meant off).
-REMOVED = (("predict_motion", False), ("fill_edge", 0.0), ("hold_time", 0.0), ("check_margin", 0.0),
-           ("shift_fill", "last"), ("limit_action", True), ("selection", "mean"))
 #: The removed broad-phase selection's fields, and the selection every recording kept may have named.
 BROAD_REMOVED, BROAD_SELECTION = ("selection", "groups", "group_size"), "mean"
+#: Removed experiments: (field, the value that meant off).
+REMOVED = (("predict_motion", False), ("fill_edge", 0.0), ("hold_time", 0.0), ("check_margin", 0.0),
+           ("shift_fill", "last"), ("limit_action", True), ("selection", BROAD_SELECTION))
 #: The core's fields under their flat names.
 CORE = {name: name for name in ("samples", "horizon", "covariance", "alpha_u", "w_goal", "w_coll", "w_state",
                                 "w_goal_terminal", "w_coll_terminal", "w_perturbation", "goal_reach",

@@ -186,8 +186,9 @@ class RouteConfig:
 
 def grown(config: RouteConfig, factor: float) -> RouteConfig:
     """``config`` with ``factor`` times its roadmap's random states and its tree's rounds (rounded)."""
+    rounds = max(1, round(config.bridge.rounds * factor))
     return dataclasses.replace(config, samples=max(1, round(config.samples * factor)),
-                               bridge=dataclasses.replace(config.bridge, rounds=max(1, round(config.bridge.rounds * factor))))
+                               bridge=dataclasses.replace(config.bridge, rounds=rounds))
 
 
 @functools.partial(jax.jit, static_argnums=1)

@@ -649,7 +649,8 @@ def test_after_each_plan_that_found_no_route_the_next_searches_a_larger_roadmap_
     box = np.random.default_rng(0).uniform([2.0, -0.5, 1.0], [2.5, 0.5, 2.0], (200, 3)).astype(np.float32)
     mask = np.ones(len(box), bool)
     model = ConvexModel(1.0).fit(box, mask, box, mask, 0.05)
-    mppi = MPPIState(*[None] * 4)._replace(key=jax.random.PRNGKey(0), stalled=jnp.asarray(0), best_goal=jnp.asarray(0.0))
+    mppi = MPPIState(*[None] * len(MPPIState._fields))._replace(key=jax.random.PRNGKey(0), stalled=jnp.asarray(0),
+                                                                best_goal=jnp.asarray(0.0))
     recovery, route = RouteRecovery(growth=3.0, route=LIFT), no_route(SPEC)
     for _ in range(4):
         route, _ = start_route(recovery, SPEC, route, mppi, START, GOAL, model)
