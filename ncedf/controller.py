@@ -234,20 +234,25 @@ class Controller:
         never stall, and a first run compiles them only where one does."""
         jax.block_until_ready(self._advance(state, *self._inputs(state, arc, goal, obstacle_points)))
 
+    def may_plan(self, state: ControllerState) -> bool:
+        """Whether the next :meth:`step` plans a route if it makes no progress (a plan may take
+        seconds to minutes on a CPU: a loop can say so before the step)."""
+        recovery = self.config.recovery
+        return recovery is not None and plan_due(recovery, state.route, int(state.mppi.stalled) + 1)
+
     def prepare(self, state: ControllerState, arc, goal, obstacle_points=None) -> None:
         """Compile the route's programs where the next :meth:`step` may plan this controller's first
         route, so that a timed step holds the plan and not its compilation: a plan to where the
         tip already is, and the check of a route's moves (the route's second and third tries,
         ``ncedf.route.GoalLift`` and ``Bridge``, compile where an episode first needs them). Nothing otherwise;
         a loop that calls it before each timed step pays for the route only where it plans one."""
-        recovery = self.config.recovery
-        if recovery is None or self._route_ready or not plan_due(recovery, state.route, int(state.mppi.stalled) + 1):
+        if self._route_ready or not self.may_plan(state):
             return
         arc, goal, points, mask, model, guide = self._inputs(state, arc, goal, obstacle_points)
         here = np.asarray(arc)
         aligned = guide is not None or goal.shape == (4, 4)
         plan_route(self.core_spec, model, here, tips(here[None], self.core_spec)[0], state.mppi.key,
-                   recovery.route, np.array([1.0, 0.0, 0.0]) if aligned else None)
+                   self.config.recovery.route, np.array([1.0, 0.0, 0.0]) if aligned else None)
         jax.block_until_ready(self.check_moves(arc, points, mask, model)(jnp.zeros((2,) + arc.shape, jnp.float32)))
         self._route_ready = True
 

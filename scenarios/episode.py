@@ -668,9 +668,14 @@ class _Loop:
                 return self.result("stuck")
 
             mppi.prepare(state, arc, goal_jnp, points)  # a route's first plan: compiled outside the timing
+            planning = mppi.may_plan(state)
+            if planning:  # the bar stands still meanwhile
+                self.bar.set_description(f"{self.episode.settings.scenario}: planning a route", refresh=True)
             start, before = time.perf_counter(), state
             action, state, info = jax.block_until_ready(mppi.step(state, arc, goal_jnp, points))
             self.solver_ms.append((time.perf_counter() - start) * 1e3)
+            if planning:
+                self.bar.set_description(self.episode.settings.scenario, refresh=False)
             arc_next = np.asarray(project_state(arc + np.asarray(action) * dt, spec), dtype=np.float32)
             judgement = judge_mod.judge_step(world, spec, arc, arc_next, t, dt)
             self.min_true = min(self.min_true, judgement.min_distance)

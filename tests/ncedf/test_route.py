@@ -556,7 +556,7 @@ def test_route_settings_are_validated():
 
 def test_prepare_compiles_the_routes_programs_where_a_plan_is_due_so_the_plan_compiles_nothing(cloud):
     """The warm-up compiles the step alone; ``prepare`` compiles the route's programs before the step
-    whose stall count makes a plan due, and nothing before the others."""
+    whose stall count makes a plan due (the one ``may_plan`` names), and nothing before the others."""
     mppi = _controller()
     programs = [route_module._clearance, route_module._refine, route_module._ends, route_module.around,
                 controller_module._check_moves]
@@ -567,6 +567,7 @@ def test_prepare_compiles_the_routes_programs_where_a_plan_is_due_so_the_plan_co
     mppi.prepare(_stalled(state, 4), START, GOAL, cloud)  # a plan is due at 6 steps without progress (after=5)
     assert [p._cache_size() for p in programs] == before
     due = _stalled(state, 5)
+    assert mppi.may_plan(due) and not mppi.may_plan(_stalled(state, 4)) and not mppi.may_plan(_stalled(state, 6))
     mppi.prepare(due, START, GOAL, cloud)
     warm = [p._cache_size() for p in programs]
     assert all(w > b for w, b in zip(warm, before))
