@@ -133,12 +133,18 @@ def _capsule_distance(p, xyz, segments: int):
     return out
 
 
+def pair_mask(mask: jnp.ndarray, link, point) -> jnp.ndarray:
+    """Whether each (link, point) pair counts, by ``mask`` (P,) or per link (M, P) (``ncedf.mount``);
+    ``link`` and ``point`` broadcast."""
+    return mask[point] if mask.ndim == 1 else mask[link, point]
+
+
 def stage_one(xyz, points: jnp.ndarray, mask: jnp.ndarray, k1: int, segments: int) -> jnp.ndarray:
     """Candidates per (horizon step, link), over all rollouts.
 
     Args:
       xyz: 3 arrays (N, H, M, S + 1): capsule backbone points of the rollout states.
-      points: (P, 3); mask: (P,) bool.  k1: candidates per link (<= P).
+      points: (P, 3); mask: (P,) or (M, P) bool.  k1: candidates per link (<= P).
     Returns:
       (H, M, k1) int indices into ``points``: the k1 points nearest to the mean
       (over rollouts) capsule segments of each (step, link).
@@ -208,7 +214,7 @@ def stage_two(xyz, radius, idx, points, mask, k2: int, segments: int, offset: fl
 
     Args:
       xyz: 3 arrays (N, H, M, S + 1): capsule backbone points; radius: (N, H, M).
-      idx: (H, M, K1) candidates of each (step, link).  points (P, 3), mask (P,).
+      idx: (H, M, K1) candidates of each (step, link).  points (P, 3), mask (P,) or (M, P).
       offset: bounds the capsule radii from above (a sagitta is at most L / 2): r + L.
     Returns:
       link (N, H, k2) and point index (N, H, k2) of the selected pairs.
@@ -220,7 +226,7 @@ def stage_two(xyz, radius, idx, points, mask, k2: int, segments: int, offset: fl
     gidx = idx.reshape(n_steps, n_links, n_groups, g)
     cand = tuple(points[gidx, i][None] for i in range(3))  # (1, H, M, G, g)
     d = _capsule_distance(cand, tuple(c[..., None, None, :] for c in xyz), segments)  # (N, H, M, G, g)
-    d = jnp.where(mask[gidx], d - radius[..., None, None], jnp.inf)
+    d = jnp.where(pair_mask(mask, jnp.arange(n_links)[:, None, None], gidx), d - radius[..., None, None], jnp.inf)
     gmin = jnp.min(d, axis=-1).reshape(d.shape[:2] + (n_links * n_groups,))
     best = smallest(gmin, k2, offset=offset)  # (N, H, k2) flat group index
     link = best // n_groups
@@ -231,7 +237,7 @@ def stage_two(xyz, radius, idx, points, mask, k2: int, segments: int, offset: fl
     p = tuple(points[pid, i] for i in range(3))
     ends = tuple(jnp.take_along_axis(c, link[..., None], axis=2)[..., None, :] for c in xyz)  # (N, H, k2, 1, S + 1)
     d = _capsule_distance(p, ends, segments) - jnp.take_along_axis(radius, link, axis=2)[..., None]
-    d = jnp.where(mask[pid], d, jnp.inf).reshape(d.shape[:2] + (k2 * g,))
+    d = jnp.where(pair_mask(mask, link[..., None], pid), d, jnp.inf).reshape(d.shape[:2] + (k2 * g,))
     pick = smallest(d, k2, offset=offset)  # (N, H, k2)
     return jnp.take_along_axis(link, pick // g, axis=-1), jnp.take_along_axis(pid.reshape(d.shape), pick, axis=-1)
 
@@ -241,7 +247,7 @@ def rollout_min_distances_broad(shape, arcs, points, mask, k1: int, k2: int, seg
 
     Args:
       shape: a representation from ``ncedf.shapes``.
-      arcs: (N, H, M, 3) rollout states.  points: (P, 3); mask: (P,) bool.
+      arcs: (N, H, M, 3) rollout states.  points: (P, 3); mask: (P,) or per link (M, P) bool.
       k1, k2, segments: see the module docstring (clamped to the point count).
       frames: (N, H, M + 1, 4, 4) forward kinematics of ``arcs`` if already computed.
     Returns:
@@ -256,7 +262,7 @@ def rollout_min_distances_broad(shape, arcs, points, mask, k1: int, k2: int, seg
     idx = stage_one(xyz, points, mask, k1, segments)  # (H, M, K1)
     link, pidx = stage_two(xyz, radius, idx, points, mask, k2, segments, spec.thickest + spec.length)  # (N, H, K2)
     d = shape.state_pair_distances(arcs, frames, points[pidx], link)  # (N, H, K2)
-    return jnp.min(jnp.where(mask[pidx], d, jnp.inf), axis=-1)
+    return jnp.min(jnp.where(pair_mask(mask, link, pidx), d, jnp.inf), axis=-1)
 
 
 def rollout_min_distances_brute(shape, arcs, points, mask):
@@ -273,8 +279,8 @@ def rollout_min_distances_brute(shape, arcs, points, mask):
 
 
 def rollout_min_distances(broad: BroadPhase | None, shape, arcs, points, mask, frames=None):
-    """(N, H) min distance of each rollout state (N, H, M, 3) to the cloud (P, 3) with mask (P,),
-    m: by the broad phase, or by brute force where ``broad`` is None."""
+    """(N, H) min distance of each rollout state (N, H, M, 3) to the cloud (P, 3) with mask (P,) or
+    per link (M, P), m: by the broad phase, or by brute force where ``broad`` is None."""
     if broad is None:
         return rollout_min_distances_brute(shape, arcs, points, mask)
     return rollout_min_distances_broad(shape, arcs, points, mask, broad.k1, broad.k2, broad.capsule_segments,

@@ -14,7 +14,9 @@ dataclass of its own module:
 * ``guide``: None or the goal distance along the grid model's free space (``ncedf.guide``);
 * ``safety``: None or the check of the executed action (``ncedf.safety``);
 * ``recovery``: None or the route round the static obstacles (``ncedf.recovery``), which
-  plans round the obstacle model.
+  plans round the obstacle model;
+* ``mount``: None or the surface under the base, which the first link cannot reach (``ncedf.mount``):
+  its points count for the other links only, and the obstacle model leaves them out.
 
 The jitted step (``ncedf.mppi.mppi_step``) runs the core with the stages that act
 inside it; :class:`Controller` validates the inputs, pads the cloud to the
@@ -42,6 +44,7 @@ from ncedf.broad_phase import BroadPhase
 from ncedf.grid_model import GridModel
 from ncedf.guide import Guide
 from ncedf.legacy import broad_phase_fields, recovery_fields
+from ncedf.mount import Mount, link_mask, marked, off_mount
 from ncedf.mppi import MPPIConfig, MPPIInfo, MPPIState, init_state, mppi_step
 from ncedf.obstacle_model import ConvexModel
 from ncedf.recovery import RouteRecovery, RouteState, no_route, plan_due, supervise
@@ -59,7 +62,7 @@ STAGES = {
     "mppi": ((MPPIConfig,), False), "sampling": ((Sampling,), False),
     "temperature": ((Fixed, EffectiveSampleSize), False), "broad_phase": ((BroadPhase,), True),
     "model": ((ConvexModel, GridModel), True), "guide": ((Guide,), True), "safety": ((SafetyFilter,), True),
-    "recovery": ((RouteRecovery,), True),
+    "recovery": ((RouteRecovery,), True), "mount": ((Mount,), True),
 }
 
 
@@ -79,6 +82,7 @@ class ControllerConfig:
     guide: Guide | None = None
     safety: SafetyFilter | None = None
     recovery: RouteRecovery | None = None
+    mount: Mount | None = None
 
     def __post_init__(self):
         for name, (kinds, optional) in STAGES.items():
@@ -178,15 +182,17 @@ class Controller:
         return (arc, goal, points, mask, *self.fit_model(state, points, mask, goal))
 
     def fit_model(self, state: ControllerState, points, mask, goal):
-        """The fitted obstacle model of the padded cloud and the guide's field (each None without one),
-        in reference units."""
+        """The fitted obstacle model of the padded cloud (the mount's, ``ncedf.mount``: the grid's points
+        less the mount's, the polytopes under the base marked) and the guide's field (each None without
+        one), in reference units."""
         model, c = self.config.model, self.config
         if model is None:
             return None, None
         if isinstance(model, ConvexModel):
-            return model.fit(points, mask, state.previous, state.previous_mask, c.mppi.dt), None
+            return marked(c.mount, model.fit(points, mask, state.previous, state.previous_mask, c.mppi.dt)), None
         position = np.asarray(goal)[:3, 3] if goal.shape == (4, 4) else np.asarray(goal)
-        fitted = model.fit(points, mask, state.previous, state.previous_mask, c.mppi.dt, np.asarray(goal))
+        fitted = marked(c.mount, model.fit(points, off_mount(c.mount, points, mask), state.previous,
+                                           state.previous_mask, c.mppi.dt, np.asarray(goal)))
         if c.guide is None:
             return fitted, None
         if self._guided[0] is not fitted.grid or self._guided[1] != position.tobytes():
@@ -197,6 +203,7 @@ class Controller:
         """``moves (C, M, 3) -> (C,)``: the safety filter's clearance of moves from ``arc`` over a step
         (reference units)."""
         substeps = (self.config.safety or SafetyFilter()).substeps
+        mask = link_mask(self.config.mount, points, mask, self.spec.n_links)
         return lambda moves: _check_moves(self.config.mppi.dt, substeps, self.config.broad_phase, self.core_shape,
                                           arc, moves, points, mask, model=model)
 
@@ -218,7 +225,8 @@ class Controller:
     def _advance(self, state: ControllerState, arc, goal, points, mask, model, guide):
         """:meth:`step` on validated inputs (``_inputs``)."""
         action, mppi, info = mppi_step(self.core_spec, self.step_config, self.core_shape, state.mppi, arc, goal,
-                                       points, mask, model, guide)
+                                       points, link_mask(self.config.mount, points, mask, self.spec.n_links), model,
+                                       guide)
         route, c = state.route, self.config
         if c.recovery is not None:
             action, route, mppi = supervise(c.recovery, self.core_spec, self.check_moves(arc, points, mask, model),

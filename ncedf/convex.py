@@ -128,6 +128,8 @@ class Polytopes(NamedTuple):
     velocity: (C, 3) m/s, the polytope's translation (the mean velocity of its points).
     centre: (C, 3) m, radius: (C,) m, ball: (C,) bool: the cluster lies on that sphere and is its ball.
     left_out: (scalar int) the static clusters left out as not convex: obstacles the model misses.
+    mount: None, or (C,) bool: wholly under the robot's base plane, so no obstacle to its first link
+    (``ncedf.mount``).
     """
 
     lower: jnp.ndarray
@@ -141,6 +143,12 @@ class Polytopes(NamedTuple):
     radius: jnp.ndarray
     ball: jnp.ndarray
     left_out: jnp.ndarray
+    mount: jnp.ndarray | None = None
+
+
+def for_first_link(polytopes: Polytopes) -> Polytopes:
+    """The polytopes the first link is scored against: those marked as under its base plane left out."""
+    return polytopes._replace(present=polytopes.present & ~polytopes.mount, mount=None)
 
 
 def static_rows(points: np.ndarray, mask: np.ndarray, previous: np.ndarray, previous_mask: np.ndarray) -> np.ndarray:
@@ -527,8 +535,11 @@ def robot_clearance(arcs: jnp.ndarray, frames: jnp.ndarray, spec: RobotSpec, pol
     def scored(as_dense, states):  # configurations (S, M, 3), (S, M + 1, 4, 4), (S,) -> (S,)
         arc, frame, time = states
         geom = cover.prepare(arc, frame)  # centres (S, M, n, 3), radius (S, M)
-        d = polytope_distance(geom.centres, polytopes, time[:, None, None], as_dense, turning) - geom.radius[..., None]
-        return jnp.min(d, axis=(-2, -1))
+        d = polytope_distance(geom.centres, polytopes, time[:, None, None], as_dense, turning)
+        if polytopes.mount is not None:
+            first = polytope_distance(geom.centres[:, 0], for_first_link(polytopes), time[:, None], as_dense, turning)
+            d = d.at[:, 0].set(first)
+        return jnp.min(d - geom.radius[..., None], axis=(-2, -1))
 
     def chunked(states):  # whole chunks in a loop, then the rest
         n = states[0].shape[0]

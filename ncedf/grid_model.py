@@ -77,8 +77,8 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from ncedf.convex import (COVER_SPHERES, MAX_CLUSTERS, Polytopes, fit_part, fit_polytopes, observed_motion, pack,
-                          polytope_distance)
+from ncedf.convex import (COVER_SPHERES, MAX_CLUSTERS, Polytopes, fit_part, fit_polytopes, for_first_link,
+                          observed_motion, pack, polytope_distance)
 from ncedf.parts import is_convex, split
 from ncedf.robot import BASE, RobotSpec
 from ncedf.shapes import SphereShape
@@ -412,7 +412,8 @@ def fit_clearance(arcs: jnp.ndarray, frames: jnp.ndarray, spec: RobotSpec, fit: 
     (B..., M + 1, 4, 4)) to the fit, its moving polytopes moved ``t`` s ahead (``turning``: anywhere
     within their speed times t, ``ncedf.convex.polytope_distance``; B... the broadcast of the batch
     shapes of arcs and t), m: the least over the cover balls, whose centres serve the grid and the
-    polytopes both (the polytopes skipped where none is present)."""
+    polytopes both (the polytopes skipped where none is present; the first link's balls without the
+    parts marked as under its base plane, ``ncedf.mount``)."""
     cover = SphereShape(spec, per_link=COVER_SPHERES)
     batch = jnp.broadcast_shapes(arcs.shape[:-2], jnp.shape(t))
     flat_arcs = jnp.broadcast_to(arcs, batch + arcs.shape[-2:]).reshape((-1,) + arcs.shape[-2:])
@@ -420,4 +421,7 @@ def fit_clearance(arcs: jnp.ndarray, frames: jnp.ndarray, spec: RobotSpec, fit: 
     time = jnp.broadcast_to(jnp.asarray(t, arcs.dtype), batch).reshape(-1, 1, 1)
     geom = jax.vmap(cover.prepare)(flat_arcs, flat_frames)  # centres (B, M, n, 3), radius (B, M)
     d = nearer(still_distance(fit, geom.centres), geom.centres, fit.moving, time, turning)  # (B, M, n)
+    if fit.parts.mount is not None:
+        first, centres = fit._replace(parts=for_first_link(fit.parts)), geom.centres[:, 0]
+        d = d.at[:, 0].set(nearer(still_distance(first, centres), centres, fit.moving, time[:, 0], turning))
     return jnp.min(d - geom.radius[..., None], axis=(-2, -1)).reshape(batch)

@@ -296,7 +296,8 @@ def mppi_step(spec: RobotSpec, config, shape, state: MPPIState, arc, goal, point
     Args:
       shape: a :class:`ncedf.shapes.Shape`.  state: :class:`MPPIState`.
       arc: (M, 3) current arc lengths, m.  goal: (3,) position or (4, 4) pose.
-      points: (max_points, 3) obstacle cloud, m; mask: (max_points,) bool, True = real point.
+      points: (max_points, 3) obstacle cloud, m; mask: (max_points,) bool, True = real point, or
+        (M, max_points) for the points each link counts (``ncedf.mount``).
       model: the fitted obstacle model (``ncedf.convex.Polytopes`` or ``ncedf.grid_model.GridFit``), or None.
       guide: the guide's field (``ncedf.guide``), or None for the straight goal distance.
     Returns:

@@ -37,6 +37,10 @@
     stalls, its routes planned round the grid and into the opening along the
     guide's path.
 
+  With surface points, the surface under the base (a floor, a table) is the robot's mount
+  (``ncedf.mount``): the first link never reaches below its base plane, so it is not scored
+  against the points there, which the obstacle model leaves out.
+
 Nothing here depends on a scenario: a world is described by :class:`Observation`.
 The evidence for each choice is in ``docs/experiments.md``.
 """
@@ -51,6 +55,7 @@ from scipy.spatial import cKDTree
 from ncedf.controller import ControllerConfig
 from ncedf.grid_model import GridModel
 from ncedf.guide import Guide
+from ncedf.mount import Mount, holds
 from ncedf.mppi import MPPIConfig
 from ncedf.obstacle_model import ConvexModel
 from ncedf.recovery import RouteRecovery
@@ -83,6 +88,9 @@ STALL_ESS = 0.005
 GRID_ROUTE = RouteConfig(node_clearance=0.1, edge_clearance=0.05)
 #: ``ours`` with a grid model: a pose goal's corridor kept open (``GridModel``), in the robot's thickest radii.
 CORRIDOR = 2.0
+#: ``ours`` with surface points: the mount's reach beyond the base disk, in link lengths (there the first
+#: link's bounding balls dip below the base plane; farther out its body stays well above it).
+MOUNT_SPAN = 0.25
 #: Neighbours whose distance estimates the samples' spacing (:func:`sampling_gap`).
 GAP_NEIGHBOURS = 8
 #: ``ours`` with balls: the low-pass noise's beta (a rollout keeps its direction over the horizon).
@@ -198,12 +206,18 @@ def ours(spec: RobotSpec, observation: Observation) -> ControllerConfig:
                             corridor_radius=CORRIDOR * spec.thickest, corridor_length=spec.length, link=CONVEX_LINK),
             guide=Guide(spec.thickest),
             temperature=EffectiveSampleSize(OURS_ESS, StallEscape(STALL_STEPS, STALL_ESS)),
-            recovery=RouteRecovery(after=STALL_STEPS, route=GRID_ROUTE))
+            recovery=RouteRecovery(after=STALL_STEPS, route=GRID_ROUTE), mount=_mount(spec))
     return dataclasses.replace(
         base, mppi=dataclasses.replace(base.mppi, w_coll=SURFACE_W_COLL, w_coll_terminal=SURFACE_W_COLL),
         sampling=dataclasses.replace(base.sampling, unclipped=True),
         temperature=EffectiveSampleSize(OURS_ESS, StallEscape(STALL_STEPS, STALL_ESS)),
-        model=ConvexModel(CONVEX_LINK), recovery=RouteRecovery(after=STALL_STEPS))
+        model=ConvexModel(CONVEX_LINK), recovery=RouteRecovery(after=STALL_STEPS), mount=_mount(spec))
+
+
+def _mount(spec: RobotSpec) -> Mount | None:
+    """The base disk and ``MOUNT_SPAN`` of a link round it, where the first link keeps above its base
+    plane (``ncedf.mount.holds``)."""
+    return Mount(spec.radii[0] + MOUNT_SPAN * spec.length) if holds(spec) else None
 
 
 #: The presets by ``--controller`` name, with one line each for ``--help``.

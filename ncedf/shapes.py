@@ -85,7 +85,8 @@ class Shape(Protocol):
     name: str
 
     def min_distance(self, points: jnp.ndarray, arc: jnp.ndarray, mask=None) -> jnp.ndarray:
-        """Smallest distance from the (unmasked) points (P, 3) to the robot at arc (M, 3); +inf if none, m."""
+        """Smallest distance from the (unmasked) points (P, 3) to the robot at arc (M, 3); +inf if none, m.
+        ``mask``: (P,), or (M, P) per link."""
 
     def distances(self, points: jnp.ndarray, arc: jnp.ndarray) -> jnp.ndarray:
         """(P,) distance from each point to the robot, m."""
@@ -129,7 +130,10 @@ class _Base:
         return jnp.min(self.link_distances(points, arc), axis=0)
 
     def min_distance(self, points: jnp.ndarray, arc: jnp.ndarray, mask=None) -> jnp.ndarray:
-        """Smallest distance from the (unmasked) points to the robot; +inf if none."""
+        """Smallest distance from the (unmasked) points to the robot; +inf if none. ``mask``: (P,), or
+        (M, P) for the points each link counts (``ncedf.mount``)."""
+        if mask is not None and mask.ndim == 2:
+            return _masked_min(self.link_distances(points, arc), mask)
         return _masked_min(self.distances(points, arc), mask)
 
     def state_pair_distances(self, arcs, frames, points, link):

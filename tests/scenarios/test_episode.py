@@ -224,15 +224,16 @@ def test_goal_errors_of_a_pose_goal():
 def test_recordings_made_before_the_stages_rebuild_their_episode(path):
     """The committed recordings hold the flat controller settings of their day; read back, they are
     the controller that their settings build today, with the broad phase's sizes of then (12 pairs per
-    state, 2 capsules per link), the route's check step of then (0.01 m) and every plan's settings the
-    first's (growth 1)."""
+    state, 2 capsules per link), the route's check step of then (0.01 m), every plan's settings the
+    first's (growth 1) and no mount."""
     run = load_run(path)
     assert "safety_check" in run.meta["mppi"]  # the flat form
     settings = EpisodeSettings.from_dict(run.meta["settings"])
     today = Episode(settings).scene.config
     recovery = dataclasses.replace(today.recovery, route=dataclasses.replace(today.recovery.route, check_step=0.01),
                                    growth=1.0)
-    then = dataclasses.replace(today, broad_phase=BroadPhase(k2=12, capsule_segments=2), recovery=recovery)
+    then = dataclasses.replace(today, broad_phase=BroadPhase(k2=12, capsule_segments=2), recovery=recovery,
+                               mount=None)
     assert config_from_dict(run.meta["mppi"]) == then
 
 
