@@ -102,9 +102,9 @@ def _facing(y: np.ndarray, backbone: np.ndarray, tangent: np.ndarray, disk: np.n
 def _evaluate(index, pose: dict, cells: dict, upper: np.ndarray, spec: RobotSpec):
     """Bounds of d_T over C cells given the best upper bounds (N,) so far.
 
-    Returns the least upper bound (C,) each cell gives, its lower bound (C,), whether the ring
-    bound is the larger (C,), and the centres (C, 3) and path radii (C,). Queries are capped where
-    a farther mesh could not lower any bound below ``upper``: a capped distance is a lower bound.
+    Returns the least upper bound (C,) each cell gives, its lower bound (C,) and whether the ring
+    bound is the larger (C,). Queries are capped where a farther mesh could not lower any bound
+    below ``upper``: a capped distance is a lower bound.
     """
     centre, backbone, tangent, theta = cell_points(pose, cells["instant"], cells["link"], cells["coords"], spec)
     half, disk, r = cells["half"], cells["disk"], spec.radius_of(cells["link"])
@@ -132,7 +132,7 @@ def _evaluate(index, pose: dict, cells: dict, upper: np.ndarray, spec: RobotSpec
     lipschitz = np.where(open_, at_centre - rho, -np.inf)
     # along u only while the ring bound leads and the cell is longer (in path length) than wide
     long = (spec.length + theta * r) * half[:, 0] >= r * half[:, 1]
-    return np.minimum(at_centre, facing), np.maximum(lipschitz, ring), ~disk & (ring >= lipschitz) & long, centre, rho
+    return np.minimum(at_centre, facing), np.maximum(lipschitz, ring), ~disk & (ring >= lipschitz) & long
 
 
 def _link_boxes(cells: dict, centre: np.ndarray, rho: np.ndarray, n: int, m: int):
@@ -144,28 +144,62 @@ def _link_boxes(cells: dict, centre: np.ndarray, rho: np.ndarray, n: int, m: int
     return lower, upper
 
 
-def surface_bound(index, spec: RobotSpec, pose: dict, n: int):
-    """Branch and bound of ``dist(S, T)`` for N states: upper (N,), lower (N,) and the link boxes."""
-    coarse = coarse_robot_cells(spec)
-    c = len(coarse["coords"])
+def _boxes(spec: RobotSpec, pose: dict, cells: dict, n: int):
+    """The link boxes (:func:`_link_boxes`) of N states' cells."""
+    centre, _, _, theta = cell_points(pose, cells["instant"], cells["link"], cells["coords"], spec)
+    rho = path_radius(cells["half"], cells["coords"], cells["disk"], theta, cells["link"], spec)
+    return _link_boxes(cells, centre, rho, n, spec.n_links)
+
+
+def _cells(coarse: dict, n: int) -> dict:
+    """The coarse cells (C of each array) repeated for N states, with each cell's ``instant`` (state)."""
     cells = {k: np.tile(v, (n,) + (1,) * (v.ndim - 1)) for k, v in coarse.items()}
-    cells["instant"] = np.repeat(np.arange(n, dtype=np.int32), c)
-    upper = np.full(n, np.inf)
-    least = np.full(n, np.inf)
+    cells["instant"] = np.repeat(np.arange(n, dtype=np.int32), len(coarse["coords"]))
+    return cells
+
+
+def _base_disk(coarse: dict) -> np.ndarray:
+    """(C,) bool: the coarse cells of the first link's base disk."""
+    return coarse["disk"] & (coarse["link"] == 0) & (coarse["coords"][:, 0] == 0.0)
+
+
+@functools.lru_cache(maxsize=32)
+def base_disk_bound(mesh, spec: RobotSpec) -> tuple[float, float]:
+    """The upper and lower bound of the distance from the robot's base disk to a mesh, found once: the
+    disk lies where the base is in every state and the mesh stands still. (A disk parallel to a face
+    just under it, a robot standing on a table, ties over its whole area: refined to the tolerance
+    everywhere, at every instant of every step, it was most of the judge's time.)"""
+    coarse = coarse_robot_cells(spec)
+    coarse = {k: v[_base_disk(coarse)] for k, v in coarse.items()}
+    pose = poses(np.asarray(spec.straight_state(), np.float32)[None], spec)
+    upper, least = _branch_and_bound(mesh.index, spec, pose, _cells(coarse, 1), np.full(1, np.inf), np.full(1, np.inf))
+    return float(upper[0]), float(least[0])
+
+
+def surface_bound(mesh, spec: RobotSpec, pose: dict, n: int):
+    """Branch and bound of ``dist(S, T)`` for N states: upper (N,), lower (N,) and the link boxes;
+    the base disk's bounds found once (:func:`base_disk_bound`)."""
+    coarse = coarse_robot_cells(spec)
+    boxes = _boxes(spec, pose, _cells(coarse, n), n)
+    coarse = {k: v[~_base_disk(coarse)] for k, v in coarse.items()}
+    upper, least = (np.full(n, bound) for bound in base_disk_bound(mesh, spec))
+    return (*_branch_and_bound(mesh.index, spec, pose, _cells(coarse, n), upper, least), boxes)
+
+
+def _branch_and_bound(index, spec: RobotSpec, pose: dict, cells: dict, upper: np.ndarray, least: np.ndarray):
+    """The loop of :func:`surface_bound` over ``cells`` from the bounds so far, upper (N,) and least (N,)."""
     for level in range(_LEVELS):
-        value, bound, ring_larger, centre, rho = _evaluate(index, pose, cells, upper, spec)
-        if level == 0:
-            boxes = _link_boxes(cells, centre, rho, n, spec.n_links)
+        value, bound, ring_larger = _evaluate(index, pose, cells, upper, spec)
         np.minimum.at(upper, cells["instant"], value)
         best = upper[cells["instant"]]
         keep = bound < best - tolerance(best)
-        if level == _LEVELS - 1 or keep.sum() > _CELLS * n:
+        if level == _LEVELS - 1 or keep.sum() > _CELLS * len(upper):
             keep[:] = False
         np.minimum.at(least, cells["instant"][~keep], bound[~keep])
         if not keep.any():
             break
         cells = _split(_take(cells, keep), ring_larger[keep])
-    return upper, least, boxes
+    return upper, least
 
 
 @functools.partial(jax.jit, static_argnums=(2,))
@@ -218,7 +252,7 @@ def mesh_distances(mesh, spec: RobotSpec, arcs: np.ndarray, exact_depth: bool = 
     """Signed distances (N,) m of a mesh obstacle to the robot at N states (N, M, 3), and certificates (N,)."""
     n = len(arcs)
     pose = poses(arcs, spec)
-    upper, lower, (box_low, box_high) = surface_bound(mesh.index, spec, pose, n)
+    upper, lower, (box_low, box_high) = surface_bound(mesh, spec, pose, n)
     value, certificate = upper.copy(), np.maximum(upper - lower, 0.0)  # >= 0 but for float32 rounding
     swallowed = _swallowed(mesh, spec, arcs, box_low, box_high) & (lower > 0)
     for i in np.nonzero((lower <= 0) | swallowed)[0]:

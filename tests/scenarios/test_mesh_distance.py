@@ -18,6 +18,7 @@ from ncedf.geometry import robot_signed_distance, robot_surface_points
 from ncedf.robot import RobotSpec, forward_kinematics, sample_arc_lengths
 from scenarios.judge import judge_step
 from scenarios.mesh_check import MeshWarning
+from scenarios.mesh_distance import base_disk_bound
 from scenarios.truth import true_distances_certified
 from scenarios.world import MeshObstacle, World
 
@@ -212,3 +213,18 @@ def test_random_non_convex_meshes_at_random_gaps(arcs):
         shape = blob(rng)
         value = check(beside(arc, int(rng.integers(SPEC.n_links)), rng.uniform(0.1, 0.9), gap, shape), arc)
         assert (value < 0) == (gap < -CERTIFIED) or abs(gap) <= CERTIFIED
+
+
+def test_a_robot_standing_on_a_plate_its_base_disk_bounded_once_for_every_state(arcs):
+    """A plate 3 mm under the base (the base disk parallel to its top: ties over the whole disk; a state
+    bent into it too): every state's value within its certificate of brute force, the base disk's bound
+    found once for them all."""
+    plate = trimesh.creation.box(extents=(0.3, 0.3, 0.004)).apply_translation((0.05, 0.0, -0.005))
+    obstacle = MeshObstacle(plate.vertices, plate.faces)
+    before = base_disk_bound.cache_info().misses
+    values, certificates = true_distances_certified(World(meshes=(obstacle,)), SPEC, arcs, np.zeros(len(arcs)))
+    assert base_disk_bound.cache_info().misses == before + 1
+    for arc, value, certificate in zip(arcs, values[:, 0], certificates[:, 0]):
+        low, high = brute_force(plate, arc)
+        assert low - 1e-5 <= value and value - certificate <= high + 1e-5, (low, value, certificate, high)
+        assert (certificate <= CERTIFIED + 1e-6 or value < -CERTIFIED) and value <= 0.003 + CERTIFIED
