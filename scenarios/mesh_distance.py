@@ -29,7 +29,8 @@ inside or outside V: the winding number at one point of R decides.
 
 Contact (L <= 0) or a swallowed component: the mesh's own triangles overlapping the box of a link
 (widened by the margin ``max(U, 0) + TOLERANCE``; the others have ``sdf_R`` above it) are refined
-into midpoint triangles, ``sdf_R`` at a centroid minus the covering radius bounding it below, until
+into midpoint triangles, ``sdf_R`` at a centroid minus the covering radius bounding it below (the
+first link's part no less than the triangle's depth under the base plane, ``triangle_bounds``), until
 every bound is within ``TOLERANCE`` of the best value or (unless ``exact_depth``) a penetration
 deeper than ``TOLERANCE`` is certain (the certificate then says how far the value may be off).
 """
@@ -42,7 +43,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ncedf.geometry import robot_signed_distance
+from ncedf.geometry import robot_link_signed_distances, robot_signed_distance
+from ncedf.mount import holds
 from ncedf.robot import RobotSpec
 from scenarios.robot_cells import bucket, cell_points, coarse_robot_cells, path_radius, poses
 
@@ -231,12 +233,33 @@ def triangle_cover(triangles: np.ndarray) -> np.ndarray:
     return np.sqrt(np.max(np.sum((triangles - centroid) ** 2, axis=-1), axis=-1))
 
 
+@functools.partial(jax.jit, static_argnums=(2,))
+def _link_sdf_program(points, arc, spec: RobotSpec):
+    return robot_link_signed_distances(points, arc, spec)
+
+
+def triangle_bounds(triangles: np.ndarray, arc: np.ndarray, spec: RobotSpec) -> tuple[np.ndarray, np.ndarray]:
+    """``sdf_R`` (K,) at the centroids of triangles (K, 3, 3) for one state (M, 3), and a lower bound
+    (K,) of it over each: per link its value less the covering radius, the first link's no less than
+    the triangle's depth under the base plane (``ncedf.mount``: that link lies above the plane, so a
+    point at height z is no deeper in it than z). A robot touching a floor under its base then closes
+    the floor's triangles at once instead of refining them over the whole base disk."""
+    n = len(triangles)
+    centroids = triangles.mean(axis=1)
+    padded = np.concatenate([centroids, np.repeat(centroids[:1], bucket(n) - n, axis=0)])
+    links = np.asarray(_link_sdf_program(jnp.asarray(padded, jnp.float32), jnp.asarray(arc, jnp.float32), spec),
+                       np.float64)[:, :n]
+    bound = links - triangle_cover(triangles)
+    if holds(spec):
+        bound[0] = np.maximum(bound[0], -triangles[..., 2].max(axis=1))
+    return links.min(axis=0), bound.min(axis=0)
+
+
 def mesh_side(triangles: np.ndarray, arc: np.ndarray, spec: RobotSpec, margin: float, exact_depth: bool):
     """``min sdf_R`` over ``triangles`` (K, 3, 3), all others known above ``margin``: (value, certificate)."""
     best, least = np.inf, margin
     while len(triangles):
-        value = robot_sdf(triangles.mean(axis=1), arc, spec)
-        bound = value - triangle_cover(triangles)
+        value, bound = triangle_bounds(triangles, arc, spec)
         best = min(best, float(value.min()))
         if best < -TOLERANCE and not exact_depth:
             least = min(least, float(bound.min()))
