@@ -52,7 +52,7 @@ def holds(spec: RobotSpec) -> bool:
 
 
 def on_mount(mount: Mount, points):
-    """(P,) bool: the points (P, 3) on the mount (numpy or jax, as given)."""
+    """(P,) bool: the points (P, 3) on the mount."""
     x, y, z = points[..., 0], points[..., 1], points[..., 2]
     return (z <= 0.0) & (x * x + y * y <= mount.reach * mount.reach)
 
@@ -69,7 +69,7 @@ def link_mask(mount: Mount | None, points: np.ndarray, mask: np.ndarray, n_links
 
 
 def off_mount(mount: Mount | None, points: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """(P,) ``mask`` less the mount's points: what the obstacle model is fitted to."""
+    """(P,) ``mask`` less the mount's points: what the grid model is fitted to."""
     return mask if mount is None else mask & ~on_mount(mount, np.asarray(points))
 
 
