@@ -61,7 +61,8 @@ def test_the_mounts_points_count_for_every_link_but_the_first_by_brute_force_and
     shape = make_shape("spheres", spec)
     arcs = sample_arc_lengths(jax.random.PRNGKey(1), spec, (6, 4, 3))
     per_link = jax.vmap(jax.vmap(lambda a: shape.link_distances(jnp.asarray(points), a)))(arcs)  # (6, 4, M, P)
-    expected = np.minimum(np.asarray(per_link[:, :, 0, ~on]).min(axis=-1), np.asarray(per_link[:, :, 1:]).min(axis=(-2, -1)))
+    first, others = np.asarray(per_link[:, :, 0, ~on]), np.asarray(per_link[:, :, 1:])
+    expected = np.minimum(first.min(axis=-1), others.min(axis=(-2, -1)))
     masks = link_mask(mount, points, mask, spec.n_links)
     assert masks.shape == (3, len(points)) and (masks[0] == ~on).all() and masks[1:].all()
     brute = rollout_min_distances(None, shape, arcs, jnp.asarray(points), jnp.asarray(masks))
@@ -121,7 +122,8 @@ def test_polytopes_wholly_under_the_base_plane_are_no_obstacle_to_the_first_link
     link's bound and keeps the others'; the bound stays below the exact distance from the body to the
     points the first link counts (the box) and those the others count (both), by brute force."""
     spec = RobotSpec(3)
-    floor, box = _box_surface([-3, -3, -0.3], [3, 3, -0.02], 1500, 0), _box_surface([1.5, -0.5, 1.5], [2.5, 0.5, 2.5], 300, 1)
+    floor = _box_surface([-3, -3, -0.3], [3, 3, -0.02], 1500, 0)
+    box = _box_surface([1.5, -0.5, 1.5], [2.5, 0.5, 2.5], 300, 1)
     polytopes = fit_polytopes(np.concatenate([floor, box]), 1.0)
     assert int(polytopes.present.sum()) == 2
     fitted = marked(Mount(0.7), polytopes)
