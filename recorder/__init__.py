@@ -27,6 +27,7 @@ Where each event goes (names in `recorder.schema`; MCAP topics = Rerun entity pa
 | `/world/robot/backbone` | LineStrips3D, one strip per link (+ colours) | foxglove.SceneUpdate, one line strip per link, in its link's colour |
 | `/world/obstacles/points` | Points3D | foxglove.PointCloud (x, y, z float32) |
 | `/world/obstacles/shapes` | `.../spheres` Ellipsoids3D, `.../boxes` Boxes3D | foxglove.SceneUpdate (spheres, cubes) |
+| `/world/obstacles/meshes` | `.../<i>` Mesh3D, static | foxglove.SceneUpdate at time 0 (a triangle list per mesh) |
 | `/world/goal` | Transform3D + a point at its origin | foxglove.FrameTransform world -> goal |
 | `/world/goal_marker` (with `goal_tolerance`) | `.../region` Ellipsoids3D (sphere of the tolerance), `.../approach` Arrows3D (pose goals) | foxglove.SceneUpdate (sphere, arrow) |
 | `/world/plan` | LineStrips3D + Points3D at the knots | foxglove.SceneUpdate line strip + a sphere per knot |

@@ -4,7 +4,8 @@ Topics (= `recorder.schema` names):
 - `/world/robot/mesh`, `/world/robot/backbone`, `/world/obstacles/shapes`, `/world/plan`: foxglove.SceneUpdate
   (frame "world"); with link clearances the mesh has per-vertex colours and each backbone line its
   link's colour (`recorder.style`); the plan is a thick line strip with a small sphere at each knot;
-  `/world/obstacles/points`: foxglove.PointCloud (x, y, z float32);
+  `/world/obstacles/points`: foxglove.PointCloud (x, y, z float32); `/world/obstacles/meshes`: the
+  world's still meshes, one foxglove.SceneUpdate each at time 0 (entity ``mesh<i>``, a triangle list);
   `/world/goal`: foxglove.FrameTransform world -> goal; with a goal tolerance, `/world/goal_marker`:
   foxglove.SceneUpdate with the goal region (a translucent sphere of that radius) and, for a pose
   goal, an arrow along its z axis ending at the goal; `/log`: foxglove.Log;
@@ -184,6 +185,8 @@ class McapSink:
         self._plan = foxglove.Channel(schema.PLAN, schema=fm.SceneUpdate.get_schema(), message_encoding="protobuf",
                                       context=ctx)
         self._shapes = fc.SceneUpdateChannel(schema.OBSTACLE_SHAPES, context=ctx)
+        self._meshes = foxglove.Channel(schema.OBSTACLE_MESHES, schema=fm.SceneUpdate.get_schema(),
+                                        message_encoding="protobuf", context=ctx)
         self._points = fc.PointCloudChannel(schema.OBSTACLE_POINTS, context=ctx)
         self._goal = fc.FrameTransformChannel(schema.GOAL, context=ctx)
         self._goal_tolerance = goal_tolerance
@@ -231,6 +234,14 @@ class McapSink:
         metrics = {k: schema.json_float(v) for k, v in s.metrics.items()}
         self._metrics.log(json.dumps({**head, **metrics}).encode(), log_time=ns)
         self._rows.append({"step": s.step, **metrics})
+
+    def log_meshes(self, meshes) -> None:
+        """The world's still meshes, (vertices (V, 3), faces (F, 3)) each: one SceneUpdate at time 0, an
+        entity ``mesh<i>`` with one triangle list per mesh."""
+        for i, (vertices, faces) in enumerate(meshes):
+            parts = [fm.TriangleListPrimitive(color=_OBSTACLE_COLOR).encode(), encode_points(vertices, TRIANGLE_POINTS),
+                     encode_indices(faces)]
+            self._meshes.log(encode_scene_update(_entity(f"mesh{i}", 0), [(ENTITY_TRIANGLES, parts)]), log_time=0)
 
     def log_text(self, message: str, level: str, step: int, sim_time_ns: int) -> None:
         msg = fm.Log(timestamp=_timestamp(sim_time_ns), level=_LEVELS.get(level.lower(), fm.LogLevel.Unknown),

@@ -283,6 +283,16 @@ class Recorder:
         for sink in self._sinks:
             sink.log_text(message, level, *self._last)
 
+    def log_meshes(self, meshes) -> None:
+        """The world's still meshes, once before the steps: (vertices (V, 3) m, faces (F, 3) indices) each,
+        drawn beside the observed points (``schema.OBSTACLE_MESHES``)."""
+        meshes = [(np.asarray(v, np.float32), np.asarray(f, np.uint32)) for v, f in meshes]
+        for v, f in meshes:
+            if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3 or (f.size and f.max() >= len(v)):
+                raise ValueError(f"a mesh needs vertices (V, 3) and faces (F, 3) indexing them, got {v.shape}, {f.shape}")
+        for sink in self._sinks:
+            sink.log_meshes(meshes)
+
     def flush(self) -> None:
         for sink in self._sinks:
             sink.flush()

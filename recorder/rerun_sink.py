@@ -3,7 +3,8 @@ optionally a second one streaming the same data live to a viewer (`recorder.view
 
 Layout (entity paths = the names in `recorder.schema`):
 - properties `run` (metadata) and `outcome`, each key holding JSON text;
-- `/world/...` 3D data; mesh triangle indices static, vertex positions (and, with link clearances,
+- `/world/...` 3D data; the world's still meshes static (`/world/obstacles/meshes/<i>`, translucent);
+  the robot mesh's triangle indices static, vertex positions (and, with link clearances,
   vertex colours) per step; the plan as a line strip with points at its knots; with a goal
   tolerance, `/world/goal_marker/region` (a translucent sphere) and, for pose goals,
   `/world/goal_marker/approach` (an arrow along the goal's z axis, ending at the goal);
@@ -305,6 +306,12 @@ class RerunSink:
             self._queue(s, _APPROACH, rr.Arrows3D,
                         lambda: rr.Arrows3D.from_fields(radii=style.APPROACH_RADIUS, colors=style.GOAL_COLOR),
                         origins=origin[None], vectors=vector[None])
+
+    def log_meshes(self, meshes) -> None:
+        """The world's still meshes, (vertices (V, 3), faces (F, 3)) each, as static translucent solids."""
+        for i, (vertices, faces) in enumerate(meshes):
+            mesh = rr.Mesh3D(vertex_positions=vertices, triangle_indices=faces, albedo_factor=style.OBSTACLE_COLOR)
+            self._each(lambda rec, i=i, mesh=mesh: rec.log(f"{schema.OBSTACLE_MESHES}/{i}", mesh, static=True))
 
     def log_text(self, message: str, level: str, step: int, sim_time_ns: int) -> None:
         self._log_at(step, sim_time_ns, schema.LOG,

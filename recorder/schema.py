@@ -19,6 +19,8 @@ MESH = "/world/robot/mesh"
 BACKBONE = "/world/robot/backbone"
 OBSTACLE_POINTS = "/world/obstacles/points"
 OBSTACLE_SHAPES = "/world/obstacles/shapes"
+#: The world's still meshes (a wall, a cabinet, a user's file), once at the start: one entity per mesh.
+OBSTACLE_MESHES = "/world/obstacles/meshes"
 GOAL = "/world/goal"
 #: The goal region (a sphere of the goal tolerance) and, for a pose goal, its approach axis; in world
 #: coordinates. Logged when the recorder knows the goal tolerance.

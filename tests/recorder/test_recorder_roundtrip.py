@@ -157,6 +157,32 @@ def test_pose_goal_becomes_a_transform(tmp_path, angle):
     np.testing.assert_allclose(cols[(schema.GOAL, "Transform3D:translation")][0][0], pose[:3, 3], rtol=1e-6, atol=1e-7)
 
 
+def test_the_worlds_meshes_are_drawn_once_as_sent(tmp_path):
+    """Two meshes logged before the steps: static Mesh3D entities in the .rrd and one SceneUpdate each at
+    time 0 in the MCAP, their vertices and triangles as sent; a malformed mesh is refused by name."""
+    tetra = (np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float), np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2],
+                                                                                        [1, 2, 3]]))
+    square = (np.array([[2, 0, 0], [3, 0, 0], [3, 1, 0], [2, 1, 0]], float), np.array([[0, 1, 2], [0, 2, 3]]))
+    with Recorder(tmp_path / "m", {}) as rec:
+        with pytest.raises(ValueError, match="faces .F, 3. indexing them"):
+            rec.log_meshes([(square[0], np.array([[0, 1, 4]]))])
+        rec.log_meshes([tetra, square])
+        rec.log_step(0, 0.0, metrics={})
+        rec.finish({"outcome": "success"})
+    cols = rrd_columns(tmp_path / "m.rrd")
+    msgs = mcap_messages(tmp_path / "m.mcap")[schema.OBSTACLE_MESHES]
+    assert [t for t, _ in msgs] == [0, 0]
+    for i, (vertices, faces) in enumerate([tetra, square]):
+        entity = f"{schema.OBSTACLE_MESHES}/{i}"
+        np.testing.assert_allclose(np.asarray(cols[(entity, "Mesh3D:vertex_positions")][0]), vertices)
+        np.testing.assert_array_equal(np.asarray(cols[(entity, "Mesh3D:triangle_indices")][0]), faces)
+        entity_msg = msgs[i][1].entities[0]
+        assert entity_msg.id == f"mesh{i}"
+        triangles = entity_msg.triangles[0]
+        np.testing.assert_allclose(xyz(triangles.points), vertices)
+        np.testing.assert_array_equal(np.asarray(triangles.indices).reshape(-1, 3), faces)
+
+
 def test_files_validate_with_rerun_cli(recorded, tmp_path):
     out, _, _ = recorded
     assert subprocess.run([RERUN, "rrd", "verify", str(out.with_suffix(".rrd"))], capture_output=True).returncode == 0

@@ -10,11 +10,14 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import trimesh
+from mcap.reader import make_reader
+from mcap_protobuf.decoder import DecoderFactory
 
 from ncedf.geometry import robot_surface_points
 from ncedf.robot import RobotSpec, config_to_arc_lengths
+from recorder import schema
 from scenarios import window
-from scenarios.episode import EpisodeSettings, build_scene
+from scenarios.episode import EpisodeSettings, build_scene, run_episode
 from scenarios.judge import judge_step
 from scenarios.solids import OVERLAP, obstacle
 from scenarios.world import World
@@ -97,3 +100,21 @@ def test_leaning_into_the_wall_collides_where_brute_force_says():
             first_brute = k
     assert first_judged is not None and first_brute is not None
     assert first_judged <= first_brute <= first_judged + 1
+
+
+def test_an_episodes_recording_draws_the_worlds_meshes(tmp_path):
+    """A runner's recording holds its world's meshes as they are (the viewer draws them beside the
+    observed points): one triangle list per mesh at time 0, the mesh's vertices and faces."""
+    settings = EpisodeSettings("window", 4, 0, shape="spheres", controller="paper", samples=16, horizon=3,
+                               max_steps=1)
+    run_episode(settings, tmp_path / "w", formats=("mcap",))
+    meshes = build_scene(settings).world.meshes
+    factory = DecoderFactory()
+    with open(tmp_path / "w.mcap", "rb") as f:
+        sent = [(message.log_time, factory.decoder_for(channel.message_encoding, schema_)(message.data))
+                for schema_, channel, message in make_reader(f).iter_messages(topics=[schema.OBSTACLE_MESHES])]
+    assert len(meshes) >= 1 and [t for t, _ in sent] == [0] * len(meshes)
+    for mesh, (_, update) in zip(meshes, sent):
+        triangles = update.entities[0].triangles[0]
+        np.testing.assert_allclose([[p.x, p.y, p.z] for p in triangles.points], mesh.vertices, atol=1e-6)
+        np.testing.assert_array_equal(np.reshape(triangles.indices, (-1, 3)), mesh.faces)
