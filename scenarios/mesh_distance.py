@@ -43,7 +43,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ncedf.geometry import robot_link_signed_distances, robot_signed_distance
+from ncedf.geometry import robot_link_signed_distances
 from ncedf.mount import holds
 from ncedf.robot import RobotSpec
 from scenarios.robot_cells import bucket, cell_points, coarse_robot_cells, path_radius, poses
@@ -205,18 +205,23 @@ def _branch_and_bound(index, spec: RobotSpec, pose: dict, cells: dict, upper: np
 
 
 @functools.partial(jax.jit, static_argnums=(2,))
-def _sdf_program(points, arc, spec: RobotSpec):
-    return robot_signed_distance(points, arc, spec)
+def _link_sdf_program(points, arc, spec: RobotSpec):
+    return robot_link_signed_distances(points, arc, spec)
+
+
+def robot_link_sdf(points: np.ndarray, arc: np.ndarray, spec: RobotSpec) -> np.ndarray:
+    """Each link's signed distance (M, P) m at points (P, 3) for one state (M, 3), padded to a bucket."""
+    n = len(points)
+    if n == 0:
+        return np.zeros((spec.n_links, 0))
+    padded = np.concatenate([points, np.repeat(points[:1], bucket(n) - n, axis=0)])
+    out = _link_sdf_program(jnp.asarray(padded, jnp.float32), jnp.asarray(arc, jnp.float32), spec)
+    return np.asarray(out, np.float64)[:, :n]
 
 
 def robot_sdf(points: np.ndarray, arc: np.ndarray, spec: RobotSpec) -> np.ndarray:
-    """``sdf_R`` (P,) m at points (P, 3) for one state (M, 3), padded to a bucket."""
-    n = len(points)
-    if n == 0:
-        return np.zeros(0)
-    padded = np.concatenate([points, np.repeat(points[:1], bucket(n) - n, axis=0)])
-    out = _sdf_program(jnp.asarray(padded, jnp.float32), jnp.asarray(arc, jnp.float32), spec)
-    return np.asarray(out, np.float64)[:n]
+    """``sdf_R`` (P,) m at points (P, 3) for one state (M, 3): the least of :func:`robot_link_sdf`."""
+    return robot_link_sdf(points, arc, spec).min(axis=0, initial=np.inf)
 
 
 def _midpoint_split(triangles: np.ndarray) -> np.ndarray:
@@ -233,22 +238,13 @@ def triangle_cover(triangles: np.ndarray) -> np.ndarray:
     return np.sqrt(np.max(np.sum((triangles - centroid) ** 2, axis=-1), axis=-1))
 
 
-@functools.partial(jax.jit, static_argnums=(2,))
-def _link_sdf_program(points, arc, spec: RobotSpec):
-    return robot_link_signed_distances(points, arc, spec)
-
-
 def triangle_bounds(triangles: np.ndarray, arc: np.ndarray, spec: RobotSpec) -> tuple[np.ndarray, np.ndarray]:
     """``sdf_R`` (K,) at the centroids of triangles (K, 3, 3) for one state (M, 3), and a lower bound
     (K,) of it over each: per link its value less the covering radius, the first link's no less than
     the triangle's depth under the base plane (``ncedf.mount``: that link lies above the plane, so a
     point at height z is no deeper in it than z). A robot touching a floor under its base then closes
     the floor's triangles at once instead of refining them over the whole base disk."""
-    n = len(triangles)
-    centroids = triangles.mean(axis=1)
-    padded = np.concatenate([centroids, np.repeat(centroids[:1], bucket(n) - n, axis=0)])
-    links = np.asarray(_link_sdf_program(jnp.asarray(padded, jnp.float32), jnp.asarray(arc, jnp.float32), spec),
-                       np.float64)[:, :n]
+    links = robot_link_sdf(triangles.mean(axis=1), arc, spec)
     bound = links - triangle_cover(triangles)
     if holds(spec):
         bound[0] = np.maximum(bound[0], -triangles[..., 2].max(axis=1))
