@@ -52,11 +52,14 @@ def test_a_compiled_program_is_written_and_read_back(tmp_path, monkeypatch, rest
     folder = enable_compile_cache()
     assert folder == cache_folder() and jax.config.jax_compilation_cache_dir == str(folder)
 
-    def program(x):
-        return jnp.sin(x) * 3.25 + jnp.cumsum(x)  # a computation no other test compiles
+    def fresh():
+        """A new function object each call: JAX traces it afresh, as a new process would."""
+        def program(x):
+            return jnp.sin(x) * 3.25 + jnp.cumsum(x)  # a computation no other test compiles
+        return program
 
     x = jnp.arange(7, dtype=jnp.float32)
-    expected = jax.jit(program)(x)
+    expected = jax.jit(fresh())(x)
     written = sorted(folder.glob("jit_program-*"))
     assert len(written) == 1, "the program was not written to the cache"
     stamp = written[0].stat().st_mtime_ns
@@ -67,8 +70,7 @@ def test_a_compiled_program_is_written_and_read_back(tmp_path, monkeypatch, rest
 
     jax.monitoring.register_event_listener(listen)
     try:
-        jax.clear_caches()  # a fresh compilation, as in a new process: served from the folder
-        assert jnp.array_equal(jax.jit(program)(x), expected)
+        assert jnp.array_equal(jax.jit(fresh())(x), expected)  # served from the folder
     finally:
         jax.monitoring.unregister_event_listener(listen)
     assert "/jax/compilation_cache/cache_hits" in hits

@@ -560,7 +560,8 @@ def test_prepare_compiles_the_routes_programs_where_a_plan_is_due_so_the_plan_co
     mppi = _controller()
     programs = [route_module._clearance, route_module._refine, route_module._ends, route_module.around,
                 controller_module._check_moves]
-    jax.clear_caches()  # so that each of them compiles here, whatever the tests before compiled
+    for program in programs:  # so that each of them compiles here, whatever the tests before compiled
+        program.clear_cache()
     before = [p._cache_size() for p in programs]
     state = mppi.init(jax.random.PRNGKey(0))
     mppi.warm_up(state, START, GOAL, cloud)
