@@ -425,6 +425,7 @@ def _root(square: jnp.ndarray) -> jnp.ndarray:
     return jnp.where(positive, jnp.sqrt(jnp.where(positive, square, 1.0)), 0.0)
 
 
+@functools.partial(jax.jit, static_argnames=("dense", "turning"))
 def polytope_distance(x: jnp.ndarray, polytopes: Polytopes, t=0.0, dense: bool | None = None,
                       turning: bool = False) -> jnp.ndarray:
     """(...,) lower bound of the distance from points x (..., 3) to the nearest polytope,
@@ -450,7 +451,8 @@ def polytope_distance(x: jnp.ndarray, polytopes: Polytopes, t=0.0, dense: bool |
     every cluster and plane slot at once, with no loop or branch (a GPU runs a
     loop's steps and branches one after another). ``dense`` chooses the form:
     None for the device's (``jax.lax.platform_dependent``), True for all at once,
-    False for the loop; the two agree to float rounding.
+    False for the loop; the two agree to float rounding. Jitted: host code calls it on numpy
+    arrays (the grid model's fit), and each eager call would trace and compile the loop again.
     """
     looped = functools.partial(_looped_distance, turning=turning)
     as_dense = functools.partial(_dense_distance, turning=turning)

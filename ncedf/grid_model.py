@@ -371,6 +371,7 @@ def at_cells(grid: Grid, i: jnp.ndarray, j: jnp.ndarray, k: jnp.ndarray) -> jnp.
     return grid.values[(i * grid.shape[1] + j) * grid.shape[2] + k]
 
 
+@jax.jit
 def grid_distance(grid: Grid, x: jnp.ndarray) -> jnp.ndarray:
     """(...,) lower bound of the distance from points x (..., 3) to the observed static points, m
     (module docstring; negative inside the closed surfaces)."""
@@ -391,6 +392,7 @@ def nearer(d: jnp.ndarray, x: jnp.ndarray, polytopes: Polytopes, t=0.0, turning:
                         lambda: jnp.minimum(d, polytope_distance(x, polytopes, t, turning=turning)), lambda: d)
 
 
+@jax.jit
 def still_distance(fit: GridFit, x: jnp.ndarray) -> jnp.ndarray:
     """(...,) lower bound of the distance from points x (..., 3) to the still points of the fit, m:
     the grid's bound (:func:`grid_distance`) or the convex parts' distance, whichever is less (each
@@ -398,6 +400,7 @@ def still_distance(fit: GridFit, x: jnp.ndarray) -> jnp.ndarray:
     return nearer(grid_distance(fit.grid, x), x, fit.parts)
 
 
+@jax.jit
 def smooth_distance(fit: GridFit, x: jnp.ndarray) -> jnp.ndarray:
     """(...,) the still points' field at points x (..., 3) interpolated trilinearly between its cell
     values, or the parts' distance where less, m: continuous, its gradient pointing away from the
