@@ -37,10 +37,11 @@ Where each event goes (names in `recorder.schema`; MCAP topics = Rerun entity pa
 | summary (on close) | - (`load_summaries` computes it from the rows) | metadata record `summary`: outcome + per-metric statistics (`recorder.summary`), indexed in the summary section |
 | `/log` text | TextLog | foxglove.Log |
 
-Rerun: timelines `step` and `sim_time` (wall clock off), a stored default blueprint (3D view of
-`/world` on a dark background; the goal distance with the goal tolerance `/reference/goal_tolerance`;
-the clearances with the safety margin `/reference/safety_margin`; solver time; the other metrics; the log
-of the run's events).
+Rerun: timelines `step` and `sim_time` (wall clock off), a stored blueprint with a view for each kind
+of data the run logs (3D view of `/world` on a dark background; the goal distance with the goal tolerance
+`/reference/goal_tolerance`; the clearances with the safety margin `/reference/safety_margin`; solver
+time; the other metrics; the log of the run's events), no empty plot: a closed-loop run's layout is stored
+at the start, another one sent where the steps log other data.
 MCAP: log_time = sim_time in ns. Scalars are float64 in both formats; `sim_time` is kept to 1 ns.
 
 Display (`recorder.style`): links coloured by `link_clearance` from red (collision) through orange

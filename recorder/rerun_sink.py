@@ -10,6 +10,7 @@ Layout (entity paths = the names in `recorder.schema`):
   `/world/goal_marker/approach` (an arrow along the goal's z axis, ending at the goal);
 - `/metrics/<name>` and `/state/<field>` Scalars (float64) on timelines `step` and `sim_time`;
 - `/reference/safety_margin` and `/reference/goal_tolerance` per step when given, `/log` TextLog.
+The blueprint holds a view for each kind of data the steps log (`_lay_out`).
 Colours and sizes come from `recorder.style`. The wall-clock timeline is off and the recording id
 comes from the caller.
 
@@ -42,25 +43,51 @@ _LEVELS = {"debug": "DEBUG", "info": "INFO", "warning": "WARN", "warn": "WARN", 
            "critical": "CRITICAL"}
 
 
-def _blueprint() -> rrb.Blueprint:
-    clearances = [f"{schema.METRICS}/{name}" for name in schema.CLEARANCE_METRICS] + [schema.SAFETY_MARGIN]
-    shown = ("goal_distance", "solver_ms", *schema.CLEARANCE_METRICS)
-    others = [f"+ {schema.METRICS}/**"] + [f"- {schema.METRICS}/{name}" for name in shown]
-    plots = [
-        rrb.TimeSeriesView(name="goal distance [m]", origin="/",
-                           contents=[f"{schema.METRICS}/goal_distance", schema.GOAL_TOLERANCE]),
-        rrb.TimeSeriesView(name="clearance [m]", origin="/", contents=clearances),
-        rrb.TimeSeriesView(name="solver [ms]", origin="/", contents=[f"{schema.METRICS}/solver_ms"]),
-        rrb.TimeSeriesView(name="other metrics", origin="/", contents=others),
-    ]
+#: The metric plots: title -> (the metrics it draws, the reference lines drawn with them).
+_PLOTS = {
+    "goal distance [m]": (("goal_distance",), (schema.GOAL_TOLERANCE,)),
+    "clearance [m]": (schema.CLEARANCE_METRICS, (schema.SAFETY_MARGIN,)),
+    "solver [ms]": (("solver_ms",), ()),
+}
+#: The plot of every metric that no plot of `_PLOTS` draws.
+_OTHERS = "other metrics"
+_CLAIMED = frozenset(name for names, _ in _PLOTS.values() for name in names)
+#: The layout stored when a run starts: a closed-loop run's (the 3D view and the plots of its standard metrics).
+_START = (frozenset(_PLOTS), True)
+
+
+def _plot_titles(metrics) -> frozenset[str]:
+    """The titles of the plots that have something to draw among these metric names."""
+    names = set(metrics)
+    titles = {title for title, (drawn, _) in _PLOTS.items() if names & set(drawn)}
+    return frozenset(titles | ({_OTHERS} if names - _CLAIMED else set()))
+
+
+def _blueprint(titles: frozenset[str], world: bool) -> rrb.Blueprint:
+    """The layout of a run: the 3D view of `/world` (if `world`), the plots named in `titles`, the log."""
+    plots = [rrb.TimeSeriesView(name=title, origin="/",
+                                contents=[f"{schema.METRICS}/{name}" for name in drawn] + list(references))
+             for title, (drawn, references) in _PLOTS.items() if title in titles]
+    if _OTHERS in titles:
+        others = [f"+ {schema.METRICS}/**"] + [f"- {schema.METRICS}/{name}" for name in sorted(_CLAIMED)]
+        plots.append(rrb.TimeSeriesView(name=_OTHERS, origin="/", contents=others))
+    side = rrb.Vertical(*plots, rrb.TextLogView(name="log", origin=schema.LOG))
+    if not world:
+        return rrb.Blueprint(side, collapse_panels=True)
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Spatial3DView(name="world", origin="/world", background=getattr(rrb.BackgroundKind, style.BACKGROUND)),
-            rrb.Vertical(*plots, rrb.TextLogView(name="log", origin=schema.LOG)),
+            side,
             column_shares=[2, 1],  # room for the default camera to frame the whole scene
         ),
         collapse_panels=True,
     )
+
+
+def _has_world(s: Step) -> bool:
+    """Whether step `s` draws anything in the 3D view."""
+    return any(x is not None for x in (s.mesh_vertices, s.backbone, s.obstacle_points, s.obstacle_shapes,
+                                       s.goal_position, s.plan))
 
 
 def _translucent(archetype, color, fill=rr.components.FillMode.TransparentFillMajorWireframe, **fields):
@@ -121,13 +148,12 @@ class RerunSink:
     def __init__(self, path: Path | None, *, app_id: str, recording_id: str, run_name: str,
                  safety_margin: float | None, goal_tolerance: float | None = None,
                  live: viewer.ViewerTarget | None = None):
-        blueprint = _blueprint()
         self._file = self._live = None
         if path is not None:
             self._file = _stream(app_id, recording_id, _batcher_config())
-            self._file.save(str(path), default_blueprint=blueprint)
+            self._file.save(str(path), default_blueprint=_blueprint(*_START))
         if live is not None:
-            self._live = self._open_live(live, app_id, recording_id, blueprint)
+            self._live = self._open_live(live, app_id, recording_id)
         self._live_url = None if live is None else live.url
         self._each(lambda rec: rec.send_recording_name(run_name))
         self._each(lambda rec: rec.log("/world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True))
@@ -136,6 +162,9 @@ class RerunSink:
         self._seen: set[tuple[str, str]] = set()
         self._pending: dict[tuple, _Column] = {}  # for the file, sent at each flush
         self._live_pending: dict[tuple, _Column] = {}  # for the viewer, sent after each step
+        self._sent = _START  # the plots and 3D view of the blueprint sent last
+        self._needed: tuple[frozenset[str], bool] | None = None  # those the steps so far have data for
+        self._meshes = False
 
     @property
     def live(self) -> bool:
@@ -143,7 +172,7 @@ class RerunSink:
         return self._live is not None
 
     @staticmethod
-    def _open_live(target: viewer.ViewerTarget, app_id: str, recording_id: str, blueprint) -> rr.RecordingStream | None:
+    def _open_live(target: viewer.ViewerTarget, app_id: str, recording_id: str) -> rr.RecordingStream | None:
         """A stream connected to the viewer at `target` (spawned first if asked), or None after a warning."""
         rec = _stream(app_id, recording_id, None)  # rerun's default batcher: it ticks, so the viewer follows
         try:
@@ -154,7 +183,7 @@ class RerunSink:
                     viewer.warn(f"the Rerun viewer started on port {target.port} does not accept connections; "
                                 "recording to files only")
                     return None
-            rec.connect_grpc(target.url, default_blueprint=blueprint)
+            rec.connect_grpc(target.url, default_blueprint=_blueprint(*_START))
         except Exception as exc:  # rerun raises RuntimeError (spawn, connect); say why and go on without
             viewer.warn(f"cannot stream to a Rerun viewer at {target.url}: {exc}; recording to files only")
             return None
@@ -173,6 +202,17 @@ class RerunSink:
     def _lose_live(self, exc: Exception) -> None:
         viewer.warn(f"lost the Rerun viewer at {self._live_url}: {exc}; recording to files only")
         self._live, self._live_pending = None, {}
+
+    def _lay_out(self, titles: frozenset[str], world: bool) -> None:
+        """Keep the stored layout to a view for each kind of data the steps so far logged, no empty plot: the
+        layout stored at the start is a closed-loop run's; where the steps need another, it is sent and made
+        active (the viewer shows the last one made active)."""
+        needed = (titles, world) if self._needed is None else (self._needed[0] | titles, self._needed[1] or world)
+        self._needed = needed
+        if needed != self._sent:
+            blueprint = _blueprint(*needed)
+            self._each(lambda rec: rec.send_blueprint(blueprint, make_active=True, make_default=True))
+            self._sent = needed
 
     def log_run(self, meta: Mapping[str, Any]) -> None:
         values = rr.AnyValues(**schema.encode_meta(meta))
@@ -227,6 +267,7 @@ class RerunSink:
 
     def log_step(self, s: Step) -> None:
         """Queue one step (every entity given, the mesh included: Rerun logs it cheaply); stream it live."""
+        self._lay_out(_plot_titles(s.metrics), self._meshes or _has_world(s))
         if s.mesh_vertices is not None:
             albedo = style.ROBOT_COLOR if s.link_colors is None else None  # albedo multiplies vertex colours
             topology = lambda: rr.Mesh3D.from_fields(  # noqa: E731
@@ -312,6 +353,9 @@ class RerunSink:
         for i, (vertices, faces) in enumerate(meshes):
             mesh = rr.Mesh3D(vertex_positions=vertices, triangle_indices=faces, albedo_factor=style.OBSTACLE_COLOR)
             self._each(lambda rec, i=i, mesh=mesh: rec.log(f"{schema.OBSTACLE_MESHES}/{i}", mesh, static=True))
+        self._meshes = True
+        if self._needed is not None:
+            self._lay_out(frozenset(), True)
 
     def log_text(self, message: str, level: str, step: int, sim_time_ns: int) -> None:
         self._log_at(step, sim_time_ns, schema.LOG,

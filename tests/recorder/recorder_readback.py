@@ -24,6 +24,22 @@ def rrd_columns(path: Path) -> dict[tuple[str, str], list]:
     return cols
 
 
+def rrd_layouts(path: Path) -> list[set[str]]:
+    """The titles of the views of each blueprint stored in a .rrd, in the order they were sent (by the
+    wall-clock `log_time` of a blueprint's rows; the reader lists the stores in no set order)."""
+    reader = rc.RrdReader(path)
+    layouts = []
+    for entry in reader.blueprints():
+        titles, sent = set(), []
+        for chunk in reader.stream(store=entry).to_chunks():
+            batch = chunk.to_record_batch()
+            sent += batch.column("log_time").to_pylist()
+            if "ViewBlueprint:display_name" in batch.schema.names:
+                titles |= {row[0] for row in batch.column("ViewBlueprint:display_name").to_pylist()}
+        layouts.append((min(sent), titles))
+    return [titles for _, titles in sorted(layouts, key=lambda x: x[0])]
+
+
 def rrd_values(path: Path) -> dict[tuple[str, str, int | None], object]:
     """{(entity, component, step): value}: every component value at its step (None: static), however the
     rows are cut into chunks. Control columns, the timelines and recording properties are left out."""

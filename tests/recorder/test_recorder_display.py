@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from recorder_readback import mcap_messages, rrd_columns, xyz
+from recorder_readback import mcap_messages, rrd_columns, rrd_layouts, xyz
 
 from recorder import Recorder, load_run, schema, style
 from recorder.synthetic import SyntheticRun
@@ -179,3 +179,27 @@ def test_bad_display_arguments(tmp_path):
     with Recorder(tmp_path / "c", {}, safety_margin=0.0) as rec:
         with pytest.raises(ValueError, match="safety margin > 0"):
             rec.log_step(0, 0.0, metrics={}, link_clearance=np.zeros(2))
+
+
+# ---------------------------------------------------------------- the stored layout
+PLOTS = {"goal distance [m]", "clearance [m]", "solver [ms]"}
+
+
+def test_the_layout_has_a_view_for_what_the_run_logs_and_no_empty_plot(tmp_path, recorded):
+    """A closed-loop run's standard metrics: the world, their three plots and the log, no plot of other
+    metrics; a run of metrics alone (training): no 3D view, no empty plot; a metric first logged at a later
+    step adds its plot (each blueprint sent after the first is made active: the viewer shows the last)."""
+    out = recorded[0]
+    assert rrd_layouts(out.with_suffix(".rrd")) == [{"world", *PLOTS, "log"}]
+    with Recorder(tmp_path / "train", {"kind": "training"}, formats=("rrd",)) as rec:
+        for k in range(3):
+            rec.log_step(k, float(k), metrics={"loss": 1.0 / (k + 1)})
+        rec.finish({"outcome": "success", "steps": 3})
+    assert rrd_layouts(tmp_path / "train.rrd")[-1] == {"other metrics", "log"}
+    with Recorder(tmp_path / "later", {"kind": "episode"}, formats=("rrd",)) as rec:
+        for k in range(3):
+            rec.log_step(k, k * DT, metrics={"goal_distance": 1.0, **({"goal_angle": 0.2} if k == 2 else {})},
+                         goal=np.zeros(3))
+        rec.finish({"outcome": "success", "steps": 3})
+    assert rrd_layouts(tmp_path / "later.rrd")[-2:] == [{"world", "goal distance [m]", "log"},
+                                                        {"world", "goal distance [m]", "other metrics", "log"}]
