@@ -568,9 +568,10 @@ class Episode:
             recorder = Recorder(out, self.run_meta(mesh_every), formats, overwrite=overwrite,
                                 safety_margin=scene.config.mppi.safety_margin * mppi.unit - scene.world.margin_extra,
                                 goal_tolerance=scene.tolerance, viewer=viewer)
-            recorder.log_meshes([(mesh.vertices, mesh.faces) for mesh in scene.world.meshes])
         loop = _Loop(self, recorder, mesh_every, progress)
         try:
+            if recorder is not None:  # inside: a failure here still closes the files
+                recorder.log_meshes([(mesh.vertices, mesh.faces) for mesh in scene.world.meshes])
             result = loop.run(arc, goal_jnp, start_distance)
         except RecordingInterrupted as exc:
             result = loop.result("interrupted", signal_name=_signal_name(exc))
