@@ -38,6 +38,7 @@ deeper than ``TOLERANCE`` is certain (the certificate then says how far the valu
 from __future__ import annotations
 
 import functools
+import weakref
 
 import jax
 import jax.numpy as jnp
@@ -165,12 +166,23 @@ def _base_disk(coarse: dict) -> np.ndarray:
     return coarse["disk"] & (coarse["link"] == 0) & (coarse["coords"][:, 0] == 0.0)
 
 
-@functools.lru_cache(maxsize=32)
+#: Each mesh's base-disk bounds per robot (:func:`base_disk_bound`), dropped with the mesh.
+_DISK_BOUNDS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
 def base_disk_bound(mesh, spec: RobotSpec) -> tuple[float, float]:
-    """The upper and lower bound of the distance from the robot's base disk to a mesh, found once: the
-    disk lies where the base is in every state and the mesh stands still. (A disk parallel to a face
-    just under it, a robot standing on a table, ties over its whole area: refined to the tolerance
-    everywhere, at every instant of every step, it was most of the judge's time.)"""
+    """The upper and lower bound of the distance from the robot's base disk to a mesh, found once per
+    mesh and robot: the disk lies where the base is in every state and the mesh stands still. (A disk
+    parallel to a face just under it, a robot standing on a table, ties over its whole area: refined to
+    the tolerance everywhere, at every instant of every step, it was most of the judge's time.)"""
+    known = _DISK_BOUNDS.setdefault(mesh, {})
+    if spec not in known:
+        known[spec] = _disk_bound(mesh, spec)
+    return known[spec]
+
+
+def _disk_bound(mesh, spec: RobotSpec) -> tuple[float, float]:
+    """:func:`base_disk_bound` computed: the branch and bound over the base disk's cells alone."""
     coarse = coarse_robot_cells(spec)
     coarse = {k: v[_base_disk(coarse)] for k, v in coarse.items()}
     pose = poses(np.asarray(spec.straight_state(), np.float32)[None], spec)

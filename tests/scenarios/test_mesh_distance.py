@@ -17,8 +17,8 @@ import trimesh
 from ncedf.geometry import robot_signed_distance, robot_surface_points
 from ncedf.robot import RobotSpec, forward_kinematics, sample_arc_lengths
 from scenarios.judge import judge_step
+from scenarios import mesh_distance
 from scenarios.mesh_check import MeshWarning
-from scenarios.mesh_distance import base_disk_bound
 from scenarios.truth import true_distances_certified
 from scenarios.world import MeshObstacle, World
 
@@ -216,15 +216,17 @@ def test_random_non_convex_meshes_at_random_gaps(arcs):
 
 
 @pytest.mark.parametrize("gap", [0.003, 0.0])
-def test_a_robot_standing_on_a_plate_its_base_disk_bounded_once_for_every_state(arcs, gap):
+def test_a_robot_standing_on_a_plate_its_base_disk_bounded_once_for_every_state(arcs, gap, monkeypatch):
     """A plate 3 mm under the base, or touching it (the base disk parallel to its top: ties over the
     whole disk; a state bent into it too): every state's value within its certificate of brute force,
-    the base disk's bound found once for them all."""
+    the base disk's bound found once for them all and kept with the mesh."""
     plate = trimesh.creation.box(extents=(0.3, 0.3, 0.004)).apply_translation((0.05, 0.0, -0.002 - gap))
     obstacle = MeshObstacle(plate.vertices, plate.faces)
-    before = base_disk_bound.cache_info().misses
+    found, disk_bound = [], mesh_distance._disk_bound
+    monkeypatch.setattr(mesh_distance, "_disk_bound", lambda *args: found.append(args) or disk_bound(*args))
     values, certificates = true_distances_certified(World(meshes=(obstacle,)), SPEC, arcs, np.zeros(len(arcs)))
-    assert base_disk_bound.cache_info().misses == before + 1
+    assert len(found) == 1 and found[0][0] is obstacle
+    assert list(mesh_distance._DISK_BOUNDS[obstacle]) == [SPEC]
     for arc, value, certificate in zip(arcs, values[:, 0], certificates[:, 0]):
         low, high = brute_force(plate, arc)
         assert low - 1e-5 <= value and value - certificate <= high + 1e-5, (low, value, certificate, high)
