@@ -151,6 +151,15 @@ def for_first_link(polytopes: Polytopes) -> Polytopes:
     return polytopes._replace(present=polytopes.present & ~polytopes.mount, mount=None)
 
 
+def per_link(score, model, first, centres: jnp.ndarray) -> jnp.ndarray:
+    """``score(model, centres)`` for cover-ball centres (..., M, n, 3), (..., M, n) m, with the first
+    link's balls scored against ``first`` instead where it is not None (the model less what lies
+    under the base plane, ``ncedf.mount``): each ball scored once."""
+    if first is None:
+        return score(model, centres)
+    return jnp.concatenate([score(first, centres[..., :1, :, :]), score(model, centres[..., 1:, :, :])], axis=-2)
+
+
 def static_rows(points: np.ndarray, mask: np.ndarray, previous: np.ndarray, previous_mask: np.ndarray) -> np.ndarray:
     """(P,) bool: real rows equal to the same row of the previous cloud (all (P, 3) / (P,))."""
     return mask & previous_mask & np.all(points == previous, axis=-1)
@@ -537,10 +546,9 @@ def robot_clearance(arcs: jnp.ndarray, frames: jnp.ndarray, spec: RobotSpec, pol
     def scored(as_dense, states):  # configurations (S, M, 3), (S, M + 1, 4, 4), (S,) -> (S,)
         arc, frame, time = states
         geom = cover.prepare(arc, frame)  # centres (S, M, n, 3), radius (S, M)
-        d = polytope_distance(geom.centres, polytopes, time[:, None, None], as_dense, turning)
-        if polytopes.mount is not None:
-            first = polytope_distance(geom.centres[:, 0], for_first_link(polytopes), time[:, None], as_dense, turning)
-            d = d.at[:, 0].set(first)
+        first = None if polytopes.mount is None else for_first_link(polytopes)
+        d = per_link(lambda model, x: polytope_distance(x, model, time[:, None, None], as_dense, turning),
+                     polytopes, first, geom.centres)
         return jnp.min(d - geom.radius[..., None], axis=(-2, -1))
 
     def chunked(states):  # whole chunks in a loop, then the rest

@@ -78,7 +78,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from ncedf.convex import (COVER_SPHERES, MAX_CLUSTERS, Polytopes, fit_part, fit_polytopes, for_first_link,
-                          observed_motion, pack, polytope_distance)
+                          observed_motion, pack, per_link, polytope_distance)
 from ncedf.parts import is_convex, split
 from ncedf.robot import BASE, RobotSpec
 from ncedf.shapes import SphereShape
@@ -423,8 +423,7 @@ def fit_clearance(arcs: jnp.ndarray, frames: jnp.ndarray, spec: RobotSpec, fit: 
     flat_frames = jnp.broadcast_to(frames, batch + frames.shape[-3:]).reshape((-1,) + frames.shape[-3:])
     time = jnp.broadcast_to(jnp.asarray(t, arcs.dtype), batch).reshape(-1, 1, 1)
     geom = jax.vmap(cover.prepare)(flat_arcs, flat_frames)  # centres (B, M, n, 3), radius (B, M)
-    d = nearer(still_distance(fit, geom.centres), geom.centres, fit.moving, time, turning)  # (B, M, n)
-    if fit.parts.mount is not None:
-        first, centres = fit._replace(parts=for_first_link(fit.parts)), geom.centres[:, 0]
-        d = d.at[:, 0].set(nearer(still_distance(first, centres), centres, fit.moving, time[:, 0], turning))
+    first = None if fit.parts.mount is None else fit._replace(parts=for_first_link(fit.parts))
+    d = per_link(lambda model, x: nearer(still_distance(model, x), x, model.moving, time, turning), fit, first,
+                 geom.centres)  # (B, M, n)
     return jnp.min(d - geom.radius[..., None], axis=(-2, -1)).reshape(batch)

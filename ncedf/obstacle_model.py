@@ -30,8 +30,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ncedf.convex import (COVER_SPHERES, Polytopes, fit_polytopes, for_first_link, observed_motion, polytope_distance,
-                          robot_clearance)
+from ncedf.convex import (COVER_SPHERES, Polytopes, fit_polytopes, for_first_link, observed_motion, per_link,
+                          polytope_distance, robot_clearance)
 from ncedf.grid_model import FAR, GridFit, fit_clearance, nearer, smooth_distance
 from ncedf.shapes import SphereShape
 from ncedf.validate import check_fields
@@ -78,11 +78,11 @@ def soft_clearance(fitted: Polytopes | GridFit, arc, frames, spec):
     interpolated, ``ncedf.grid_model.smooth_distance``), so that its gradient moves every ball near an
     obstacle away from it. For climbing clear, not a bound (:func:`model_clearance` is)."""
     geom = SphereShape(spec, per_link=COVER_SPHERES).prepare(arc, frames)
-    d = _soft_distance(fitted, geom.centres)
     parts = fitted.parts if isinstance(fitted, GridFit) else fitted
-    if parts.mount is not None:  # the first link's balls as model_clearance scores them
+    first = None  # the first link's balls as model_clearance scores them
+    if parts.mount is not None:
         first = fitted._replace(parts=for_first_link(parts)) if isinstance(fitted, GridFit) else for_first_link(parts)
-        d = d.at[0].set(_soft_distance(first, geom.centres[0]))
+    d = per_link(_soft_distance, fitted, first, geom.centres)
     d = jnp.minimum(d - geom.radius[..., None], FAR)  # no polytope: +inf, whose gradient is NaN
     return -SOFTNESS * jax.nn.logsumexp(-d.ravel() / SOFTNESS)
 
