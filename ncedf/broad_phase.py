@@ -230,8 +230,8 @@ def stage_two(xyz, radius, idx, points, mask, k2: int, segments: int, offset: fl
     gmin = jnp.min(d, axis=-1).reshape(d.shape[:2] + (n_links * n_groups,))
     best = smallest(gmin, k2, offset=offset)  # (N, H, k2) flat group index
     link = best // n_groups
-    pid = jnp.take_along_axis(jnp.broadcast_to(idx.reshape(n_steps, n_links * n_groups, g), gmin.shape[:2] + (n_links * n_groups, g)),
-                              best[..., None], axis=2)  # (N, H, k2, g)
+    groups = jnp.broadcast_to(idx.reshape(n_steps, n_links * n_groups, g), gmin.shape[:2] + (n_links * n_groups, g))
+    pid = jnp.take_along_axis(groups, best[..., None], axis=2)  # (N, H, k2, g)
     if g == 1:
         return link, pid[..., 0]
     p = tuple(points[pid, i] for i in range(3))

@@ -15,9 +15,11 @@ cross-sections at s = 0 and L. So the body lies in z >= 0: a point at height z <
 
 Hence, with a :class:`Mount`, the mount's points (at or below the plane within ``reach`` of the base's
 axis) do not count for the first link (:func:`link_mask`; every other link keeps them), the grid
-model is fitted without them (:func:`off_mount`: the hole they leave under the base is wider than
-its closing fills), and the fitted polytopes wholly under the plane are no obstacle to the first
-link (:func:`marked`: a convex hull of the floor round the hole would cover it again).
+model is fitted without them (:func:`off_mount`: the hole they leave under the base, of radius
+``reach``, stays open where the holes the grid closes between samples are smaller, their radius
+``Observation.gap``; a sparser floor is closed over it again, and the robot held still as before),
+and the fitted polytopes wholly under the plane are no obstacle to the first link (:func:`marked`:
+a convex hull of the floor round the hole would cover it again).
 """
 
 from __future__ import annotations

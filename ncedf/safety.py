@@ -66,7 +66,8 @@ def step_clearance(dt: float, substeps: int, broad: BroadPhase | None, shape, ar
     by the substep's time: an obstacle seen moving may turn within the step).
 
     Args:
-      arc: (M, 3) m.  actions: (C, M, 3) m/s.  points: (P, 3) m; mask: (P,) bool.
+      arc: (M, 3) m.  actions: (C, M, 3) m/s.  points: (P, 3) m; mask: (P,) bool, or (M, P) for the
+        points each link counts (``ncedf.mount``).
       shared: False = the broad phase picks points for each action apart (the check's few
         candidates, which can move apart); True = for all actions at once (many actions from
         one state, as for the rollouts).

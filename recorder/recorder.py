@@ -289,7 +289,8 @@ class Recorder:
         meshes = [(np.asarray(v, np.float32), np.asarray(f, np.uint32)) for v, f in meshes]
         for v, f in meshes:
             if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3 or (f.size and f.max() >= len(v)):
-                raise ValueError(f"a mesh needs vertices (V, 3) and faces (F, 3) indexing them, got {v.shape}, {f.shape}")
+                raise ValueError(f"a mesh needs vertices (V, 3) and faces (F, 3) indexing them, "
+                                 f"got {v.shape}, {f.shape}")
         for sink in self._sinks:
             sink.log_meshes(meshes)
 
