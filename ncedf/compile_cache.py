@@ -9,6 +9,8 @@ own file, so concurrent processes share one folder (a process that reads an entr
 still writes it warns that it cannot read it and compiles the program again). A folder named by JAX's own
 ``JAX_COMPILATION_CACHE_DIR`` is used instead (the test session shares one so). ``NCEDF_COMPILE_CACHE=0``
 in the environment, or a command's ``--no-cache``, turns it off, JAX's folder too.
+
+Batches of varying size are padded to a few sizes (:func:`bucket`), so that they share compiled programs.
 """
 
 from __future__ import annotations
@@ -82,3 +84,9 @@ def enable_compile_cache(on: bool = True) -> Path | None:
     folder = cache_folder()
     use_folder(folder)
     return folder
+
+
+def bucket(n: int, smallest: int = 256) -> int:
+    """The padded size of a batch of n (a power of two >= smallest): one compilation per bucket, not
+    per batch size, for at most twice the work."""
+    return max(smallest, 1 << max(n - 1, 0).bit_length())

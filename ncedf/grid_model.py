@@ -77,6 +77,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from ncedf.compile_cache import bucket
 from ncedf.convex import (COVER_SPHERES, MAX_CLUSTERS, Polytopes, fit_part, fit_polytopes, for_first_link,
                           observed_motion, pack, per_link, polytope_distance)
 from ncedf.parts import is_convex, split
@@ -305,9 +306,12 @@ def goal_cell(goal: np.ndarray, origin: np.ndarray, h: float, shape: tuple) -> t
 
 def parts_field(parts: Polytopes, origin: np.ndarray, h: float, shape: tuple) -> np.ndarray:
     """(X, Y, Z) the polytopes' distance (``ncedf.convex.polytope_distance``) at the centres of the
-    cells of the grid at ``origin`` with spacing h, m."""
-    centres = origin + h * np.stack(np.indices(shape), axis=-1)
-    return np.asarray(polytope_distance(jnp.asarray(centres, jnp.float32), parts))
+    cells of the grid at ``origin`` with spacing h, m: the centres padded to a bucket's size, so that
+    grids of other shapes share the compiled program."""
+    centres = (origin + h * np.stack(np.indices(shape), axis=-1)).reshape(-1, 3)
+    padded = np.zeros((bucket(len(centres)), 3), np.float32)
+    padded[:len(centres)] = centres
+    return np.asarray(polytope_distance(jnp.asarray(padded), parts))[:len(centres)].reshape(shape)
 
 
 def _field(points: np.ndarray, anchors: np.ndarray, corridor: bool, model: GridModel, origin: np.ndarray,

@@ -44,10 +44,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ncedf.compile_cache import bucket
 from ncedf.geometry import robot_link_signed_distances
 from ncedf.mount import holds
 from ncedf.robot import RobotSpec
-from scenarios.robot_cells import bucket, cell_points, coarse_robot_cells, path_radius, poses
+from scenarios.robot_cells import cell_points, coarse_robot_cells, path_radius, poses
 
 TOLERANCE = 0.0008
 # Beyond TOLERANCE / RELATIVE (0.8 m) the surface bound certifies RELATIVE of the distance instead: far

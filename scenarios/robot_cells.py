@@ -15,6 +15,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ncedf.compile_cache import bucket
 from ncedf.geometry import link_surface_points
 from ncedf.robot import RobotSpec, arc_lengths_to_config, forward_kinematics, frame_to_world
 
@@ -88,11 +89,6 @@ def _cell_points_program(pose: dict, which: dict, coords: jnp.ndarray, spec: Rob
 @functools.partial(jax.jit, static_argnums=(1,))
 def _poses_program(arcs: jnp.ndarray, spec: RobotSpec) -> dict:
     return jax.vmap(robot_pose, in_axes=(0, None))(arcs, spec)
-
-
-def bucket(n: int, smallest: int = 256) -> int:
-    """The padded size of a batch of n (a power of two >= smallest): one compilation per bucket."""
-    return max(smallest, 1 << max(n - 1, 0).bit_length())
 
 
 def poses(arcs: np.ndarray, spec: RobotSpec) -> dict:

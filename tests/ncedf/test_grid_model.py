@@ -9,9 +9,9 @@ from scipy.ndimage import map_coordinates
 from scipy.spatial import cKDTree
 
 from ncedf.controller import Controller, ControllerConfig
-from ncedf.convex import polytope_distance
-from ncedf.grid_model import (EXACT_BAND, LINK, REACH, GridModel, fit_clearance, grid_box, smooth_distance,
-                               still_distance)
+from ncedf.convex import fit_polytopes, polytope_distance
+from ncedf.grid_model import (EXACT_BAND, LINK, REACH, GridModel, fit_clearance, grid_box, parts_field,
+                               smooth_distance, still_distance)
 from ncedf.guide import Guide, _gradient_at, guided_distance
 from ncedf.presets import Observation, ours, sampling_gap
 from ncedf.robot import BASE, RobotSpec, forward_kinematics
@@ -216,6 +216,23 @@ def test_clouds_of_other_gaps_share_the_compiled_step_and_it_is_the_step_of_the_
                                   *controller._inputs(state, arc, goal, points))[0]
     np.testing.assert_array_equal(np.asarray(action), np.asarray(whole) * controller.unit)
     assert gaps[0] != gaps[1] and added[1] == 0
+
+
+def test_the_parts_field_is_the_polytopes_distance_at_the_cell_centres_and_grids_in_a_bucket_share_a_program():
+    """Two boxes' polytopes on grids of 20 x 20 x 20 and 21 x 20 x 19 cells (both padded to 8192): each
+    value the distance at its cell's centre (numpy's grid of centres), one compiled program for both."""
+    boxes = np.concatenate([RNG.uniform((0.5, 0.5, 0.5), (1.0, 1.5, 2.0), (200, 3)),
+                            RNG.uniform((-1.5, -1.0, 0.2), (-1.0, 1.0, 0.6), (200, 3))]).astype(np.float32)
+    parts = fit_polytopes(boxes, link=0.3)
+    polytope_distance.clear_cache()
+    grids = (((20, 20, 20), np.array([-2.0, -2.0, -1.0]), 0.2), ((21, 20, 19), np.zeros(3), 0.15))
+    fields = [parts_field(parts, origin, h, shape) for shape, origin, h in grids]
+    assert polytope_distance._cache_size() == 1
+    for field, (shape, origin, h) in zip(fields, grids):
+        centres = np.stack(np.meshgrid(*(origin[i] + h * np.arange(n) for i, n in enumerate(shape)), indexing="ij"),
+                           axis=-1).astype(np.float32)
+        assert field.shape == shape
+        np.testing.assert_array_equal(field, np.asarray(polytope_distance(jnp.asarray(centres), parts)))
 
 
 def test_a_guide_needs_the_grid_model():
