@@ -32,16 +32,20 @@ def test_the_folder_is_under_the_projects_cache_and_names_jax_and_the_platform(t
     assert cache_folder() == tmp_path / "shared"
 
 
-@pytest.mark.parametrize("value", ["0", "off", "False"])
+@pytest.mark.parametrize("value", [None, "0", "off", "False"])
 def test_the_environment_or_the_flag_turns_it_off(tmp_path, monkeypatch, restored_config, value):
+    """``on=False`` (value None) or the environment switch, each alone, turns off a cache that was on."""
     monkeypatch.setenv("NCEDF_CACHE", str(tmp_path))
-    use_folder(tmp_path / "jax")  # a folder JAX's own variable names is turned off too
-    before = jax.config.jax_compilation_cache_dir
-    assert enable_compile_cache(on=False) is None
-    monkeypatch.setenv(ENV_SWITCH, value)
-    assert enable_compile_cache() is None
-    assert jax.config.jax_compilation_cache_dir == before and not (tmp_path / "xla").exists()
-    jax.jit(lambda x: jnp.tan(x) * len(value) - 0.375)(jnp.arange(3.0))  # a program no other test compiles
+    monkeypatch.delenv("JAX_COMPILATION_CACHE_DIR", raising=False)
+    monkeypatch.delenv(ENV_SWITCH, raising=False)
+    use_folder(tmp_path / "jax")  # on, in a folder of its own
+    if value is None:
+        assert enable_compile_cache(on=False) is None
+    else:
+        monkeypatch.setenv(ENV_SWITCH, value)
+        assert enable_compile_cache() is None
+    assert not (tmp_path / "xla").exists()
+    jax.jit(lambda x: jnp.tan(x) * len(str(value)) - 0.375)(jnp.arange(3.0))  # a program no other test compiles
     assert not list((tmp_path / "jax").glob("*"))
 
 

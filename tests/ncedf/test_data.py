@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from ncedf.data import DatasetConfig, ValidationConfig, load_dataset, settings_hash
+from ncedf.data import FIELDS, DatasetConfig, ValidationConfig, load_dataset, settings_hash
 from ncedf.geometry import link_signed_distance, robot_mesh, sample_link_surface
 from ncedf.robot import RobotSpec, config_to_arc_lengths, state_violation
 
@@ -75,9 +75,15 @@ def test_surface_sample_labels_bound_the_exact_distance_from_above():
 
 def test_cache_returns_the_same_set_and_is_keyed_by_the_settings(cache):
     first = load_dataset(SMALL, SPEC)
-    assert (cache / f"datasetconfig-{first.key}.npz").is_file()
+    path = cache / f"datasetconfig-{first.key}.npz"
+    with np.load(path) as f:
+        np.testing.assert_array_equal(f["distances"], first.distances)
+        marked = {k: f[k] for k in FIELDS}
+    marked["distances"] = marked["distances"] + 1.0  # a file the builder would not write: read, not rebuilt
+    np.savez(path, **marked)
     again = load_dataset(SMALL, SPEC)
-    np.testing.assert_array_equal(first.distances, again.distances)
+    np.testing.assert_array_equal(again.distances, first.distances + 1.0)
+    path.unlink()  # the other tests read the set the builder writes
     assert first.key == again.key
     other = dataclasses.replace(SMALL, seed=4)
     assert settings_hash(other, SPEC) != first.key
@@ -91,6 +97,8 @@ def test_corrupted_cache_file_is_rebuilt(cache):
     path.write_bytes(b"not an npz")
     again = load_dataset(SMALL, SPEC)
     np.testing.assert_array_equal(first.distances, again.distances)
+    with np.load(path) as f:  # written again, whole
+        np.testing.assert_array_equal(f["distances"], first.distances)
 
 
 def test_validation_set_uses_uniform_points_in_the_box_and_exact_labels():

@@ -153,6 +153,6 @@ def test_ncedf_agrees_with_exact_within_model_error():
         # Composition through the chain equals the model's own robot-level function.
         np.testing.assert_allclose(d, robot_distance(model, pts, arc), atol=1e-5)
     err = np.concatenate(errs)
-    # The paper's 4x16 network: MAE 0.017 m; allow a margin for our own training.
-    assert err.mean() < 0.05
-    assert np.percentile(err, 99) < 0.25
+    # The paper's 4 x 16 network: MAE 0.017 m; its errors near the robot stay well under 0.1 m.
+    assert err.mean() < 0.017
+    assert np.percentile(err, 99) < 0.1

@@ -27,12 +27,12 @@ def binary_stl(path, faces: int):
 @pytest.mark.parametrize("name, content, problem", [
     ("empty.obj", "# nothing\n", "no geometry"),
     ("noface.ply", "ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\nproperty float y\nproperty float z\n"
-                   "element face 0\nproperty list uchar int vertex_indices\nend_header\n", ""),
+                   "element face 0\nproperty list uchar int vertex_indices\nend_header\n", "no geometry"),
     ("nan.obj", TETRA.replace("v 1 0 0", "v nan 0 0"), "NaN"),
     ("inf.obj", TETRA.replace("v 1 0 0", "v inf 0 0"), "NaN or infinite"),
     ("flat.obj", "v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n", "degenerate"),
     ("stray.obj", TETRA + "v 5 5 5\nv 6 6 6\nf 5 6 6\n", "degenerate faces"),
-    ("noise.stl", bytes(range(256)) * 3, ""),
+    ("noise.stl", bytes(range(256)) * 3, "no geometry"),
     ("huge.stl", "10^7", f"{MAX_FACES:,}"),
 ])
 def test_bad_mesh_files_give_one_line_naming_the_file_and_the_problem(tmp_path, name, content, problem):

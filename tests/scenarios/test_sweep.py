@@ -96,6 +96,7 @@ def test_a_sweep_records_every_episode_and_counts_their_outcomes(swept):
     runs, _ = load_runs(out)  # the episodes: the manifest is listed apart
     assert list(load_runs(out, kind="manifests")[0]["path"]) == [str(out / f"{manifest.STEM}.mcap")]
     assert runs["complete"].all() and set(runs["outcome"]) <= set(FINAL_OUTCOMES)
+    assert len(set(runs["outcome"])) > 1, "the tiny episodes should end in a mix of outcomes"
     for path in runs["path"]:  # each recording holds the settings it is named after
         assert episode_name(EpisodeSettings.from_dict(load_run(path).meta["settings"])) == Path(path).stem
     read_back = Counter(runs["outcome"])
