@@ -52,7 +52,7 @@ from tqdm import tqdm
 from ncedf.controller import Controller
 from ncedf.presets import PRESETS, Observation
 from ncedf.temperature import Fixed
-from recorder.cli import EXIT_STATUS, Stopped, exit_with, stop_on_signals
+from recorder.cli import EXIT_STATUS, OneLineParser, Stopped, exit_with, stop_on_signals
 from scenarios import WORLDS
 from scenarios.episode import Episode, EpisodeSettings, build_scene, option_positive
 
@@ -262,8 +262,8 @@ def positive_arg(name: str):
 def main(argv=None) -> int:
     listed = textwrap.fill(", ".join(VARIANTS), width=98, initial_indent="  ", subsequent_indent="  ")
     epilog = f"{__doc__}\nVARIANTS:\n{listed}\nworlds: {', '.join(WORLDS)}\n"
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], epilog=epilog,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = OneLineParser(description=__doc__.split("\n\n")[0], epilog=epilog,
+                      formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--variants", default="release,ours,paper", metavar="LIST",
                    type=parse_variants,
                    help="VARIANTS below or PRESET:STAGE.FIELD=VALUE[:...], comma-separated "

@@ -12,13 +12,13 @@ weights).
 
 from __future__ import annotations
 
-import argparse
 import time
 
 from ncedf.data import DatasetConfig, ValidationConfig, load_dataset
 from ncedf.model import ModelConfig
 from ncedf.robot import RobotSpec
 from ncedf.train import TrainConfig, train
+from recorder.cli import OneLineParser
 
 # name -> (model settings, train settings, extra near-surface points)
 VARIANTS = {
@@ -33,7 +33,7 @@ COLUMNS = ("mae", "rmse", "moe", "over_p999", "near_mae", "near_moe", "surface_m
 
 
 def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = OneLineParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--epochs", type=int, default=4)
     p.add_argument("--layers", type=int, default=4)
     p.add_argument("--width", type=int, default=16)

@@ -47,6 +47,7 @@ from ncedf.controller import Controller, ControllerConfig
 from ncedf.mppi import MPPIConfig, mppi_step
 from ncedf.robot import RobotSpec, project_state
 from ncedf.shapes import make_shape
+from recorder.cli import OneLineParser
 from scenarios import cluttered
 from scenarios.observe import make_observer
 
@@ -205,7 +206,7 @@ DEFAULT_REPS = "ncedf,spheres,exact,pointcloud:1000"
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = OneLineParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--links", type=int, nargs="+", default=[4, 5, 7])
     p.add_argument("--samples", type=int, default=800)
     p.add_argument("--horizon", type=int, default=20)

@@ -13,7 +13,6 @@ closing the files, for the Rerun sink alone, the MCAP sink alone and both. The b
 
 from __future__ import annotations
 
-import argparse
 import sys
 from concurrent.futures import ProcessPoolExecutor
 import tempfile
@@ -24,6 +23,7 @@ from pathlib import Path
 sys.path = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
 
 from recorder import Recorder, load_runs
+from recorder.cli import OneLineParser
 from recorder.synthetic import SyntheticRun
 
 BUDGET_MS = 3.0
@@ -105,7 +105,7 @@ def bench_load_runs(args, folder: Path) -> None:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = OneLineParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--links", type=int, default=7)
     parser.add_argument("--steps", type=int, default=300)
     parser.add_argument("--mcap-mesh-every", type=int, nargs="+", default=[1, 2, 5])

@@ -12,7 +12,6 @@ whole command's time, the time from the start to the end of its first control st
 
 from __future__ import annotations
 
-import argparse
 import os
 import re
 import subprocess
@@ -22,6 +21,7 @@ import time
 from pathlib import Path
 
 from arguments import parse_list
+from recorder.cli import OneLineParser
 
 COMMANDS = {
     "cluttered7": ["-m", "scenarios.cluttered", "--links", "7", "--max-steps", "1", "--formats", "mcap"],
@@ -67,7 +67,7 @@ def _seconds(value: float | None) -> str:
 
 
 def main() -> None:
-    p = argparse.ArgumentParser(prog="python bench/startup.py", description=__doc__.split("\n\n")[0])
+    p = OneLineParser(prog="python bench/startup.py", description=__doc__.split("\n\n")[0])
     p.add_argument("--commands", type=lambda t: parse_list(t, str, "command", tuple(COMMANDS)),
                    default=list(COMMANDS), help=f"comma-separated, from {', '.join(COMMANDS)} (default all)")
     args = p.parse_args()

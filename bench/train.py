@@ -12,7 +12,6 @@ metrics at the end.
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import time
 
@@ -25,6 +24,7 @@ from ncedf.model import ENCODINGS, NCEDF, ModelConfig, model_spec
 from ncedf.robot import RobotSpec
 from ncedf.train import (TrainConfig, evaluate_model, initial_state, make_epoch, make_optimizer, make_step,
                          training_arrays)
+from recorder.cli import OneLineParser
 
 
 def former_epoch(model_cfg: ModelConfig, cfg: TrainConfig, optimizer, n_samples: int):
@@ -64,7 +64,7 @@ def run(name, make, model_cfg, cfg, spec, x, y, val):
 
 
 def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = OneLineParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--layers", type=int, default=4)
     p.add_argument("--width", type=int, default=16)
     p.add_argument("--encoding", choices=ENCODINGS, default="bending-plane")

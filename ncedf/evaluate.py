@@ -11,7 +11,6 @@ against 500 points.
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 
@@ -77,7 +76,8 @@ def report_link(model, val_cfg: ValidationConfig, args) -> None:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m ncedf.evaluate", description=__doc__.split("\n\n")[0])
+    from recorder.cli import OneLineParser
+    p = OneLineParser(prog="python -m ncedf.evaluate", description=__doc__.split("\n\n")[0])
     p.add_argument("--model", default=None, help="weights file or stem (default: the shipped model)")
     p.add_argument("--configs", type=int, default=100, help="validation configurations (default 100)")
     p.add_argument("--points", type=int, default=4096, help="random points per configuration (default 4096)")

@@ -279,7 +279,8 @@ def _output_problem(stem: Path, overwrite: bool) -> str | None:
 
 
 def parse_args(argv=None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(prog="python -m ncedf.train", description=__doc__.split("\n\n")[0])
+    from recorder.cli import OneLineParser
+    p = OneLineParser(prog="python -m ncedf.train", description=__doc__.split("\n\n")[0])
     p.add_argument("--layers", type=int, default=4, help="Dense layers incl. output (default 4)")
     p.add_argument("--width", type=int, default=16, help="hidden width (default 16)")
     p.add_argument("--encoding", choices=ENCODINGS, default="bending-plane")

@@ -5,7 +5,6 @@ Exit status 0 when every file was read, 2 when any could not be (its line says `
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import warnings
@@ -35,7 +34,8 @@ def describe(path: str) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m recorder.inspect", description=__doc__.split("\n\n")[0])
+    from recorder.cli import OneLineParser
+    parser = OneLineParser(prog="python -m recorder.inspect", description=__doc__.split("\n\n")[0])
     parser.add_argument("files", nargs="+", metavar="FILE", help=".rrd or .mcap recordings")
     args = parser.parse_args(argv)
     status = 0

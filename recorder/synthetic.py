@@ -17,7 +17,6 @@ streams the run to a Rerun Viewer (see `recorder.viewer`); with `--print-steps` 
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 
@@ -139,9 +138,10 @@ class SyntheticRun:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from recorder.cli import OneLineParser
     from recorder.recorder import MCAP_MESH_EVERY, Recorder
 
-    parser = argparse.ArgumentParser(prog="python -m recorder.synthetic", description=__doc__.split("\n\n")[0])
+    parser = OneLineParser(prog="python -m recorder.synthetic", description=__doc__.split("\n\n")[0])
     parser.add_argument("out", help="output path without suffix")
     parser.add_argument("--steps", type=int, default=20)
     parser.add_argument("--links", type=int, default=4)
@@ -156,6 +156,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--print-steps", action="store_true", help="print 'step K' after each recorded step")
     parser.add_argument("--overwrite", action="store_true")
     args = parser.parse_args(argv)
+    for name in ("steps", "links", "mcap_mesh_every", "flush_every"):
+        if getattr(args, name) < 1:
+            parser.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
+    if not (args.dt > 0 and args.step_delay >= 0):
+        parser.error(f"--dt must be > 0 and --step-delay >= 0, got {args.dt} and {args.step_delay}")
     if isinstance(args.viewer, str):
         try:
             check_url(args.viewer)

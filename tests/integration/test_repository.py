@@ -80,3 +80,26 @@ def test_every_option_of_a_benchmark_is_at_most_two_lines(script, capsys, monkey
     monkeypatch.syspath_prepend(str(script.parent))
     text = help_of(lambda: runpy.run_path(str(script), run_name="__main__"), capsys)
     assert option_entries(text) and not long_entries(text)
+
+
+def one_line_error(run, capsys) -> str:
+    with pytest.raises(SystemExit) as stop:
+        run()
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "usage:" not in err, err
+    return err
+
+
+@pytest.mark.parametrize("module", MODULES)
+def test_an_unknown_option_is_a_one_line_error(module, capsys):
+    err = one_line_error(lambda: importlib.import_module(module).main(["--no-such-option"]), capsys)
+    assert ": error: " in err
+
+
+@pytest.mark.parametrize("script", SCRIPTS, ids=lambda p: p.name)
+def test_an_unknown_option_of_a_benchmark_is_a_one_line_error(script, capsys, monkeypatch):
+    monkeypatch.setattr(sys, "argv", [str(script), "--no-such-option"])
+    monkeypatch.syspath_prepend(str(script.parent))
+    err = one_line_error(lambda: runpy.run_path(str(script), run_name="__main__"), capsys)
+    assert ": error: " in err
