@@ -25,16 +25,7 @@ row's table (ms) and the ratio of our median to it. Episode outcomes are not
 measured here (``bench/closed_loop.py``, ``scenarios.sweep``). Ctrl-C prints
 the groups finished so far and exits 130 (SIGTERM: 143).
 
-Measured on one NVIDIA H200 (jax 0.11.2, ``--steps 20``; median ms, the
-paper's RTX 4090 figure in brackets): Table III release N-CEDF 4.4 (6),
-spheres 3.7 (5), point cloud 1000 3.9 (62), point cloud 5000 4.5 (284), ours
-N-CEDF 5.8; Table IV paper / release / ours, 4 links 4.8 / 4.5 / 18.7 (33.1),
-5 links 4.0 / 3.6 / 16.4 (41.9), 7 links 3.4 / 3.1 / 11.2 (60.7). Ours in the
-cluttered scene is 4x the paper controller there (the convex model: without
-it 1.11x, ``closed_loop.py --timing``). This project's 2-core CPU takes 9-35x
-as long (``--tables 4 --links 4 --steps 3``: 156 / 155 / 168 ms; ``--tables 3
---shapes ncedf,spheres,pointcloud:1000 --steps 2``: 98, 94 and ours 193 ms),
-and about 1000x for the 1000-point robot cloud (3814 ms).
+Its figures on this project's machines (a 2-core CPU, an H200) are in ``docs/experiments.md``.
 """
 
 from __future__ import annotations

@@ -66,7 +66,7 @@ refused unless `overwrite=True`; an unwritable folder fails before anything is o
 Cost: `python bench/recording_cost.py` measures the time per step and the file sizes. A live viewer
 adds one `send_columns` per entity and step on a second stream.
 
-Many runs in one process: rerun-sdk keeps each recording's threads and about 1 MB alive until the
+Many runs in one process: rerun-sdk keeps each recording's threads and some memory alive until the
 process ends (rerun-io/rerun#2116), so record thousands of runs from worker processes that are
 replaced now and then (e.g. `ProcessPoolExecutor(max_tasks_per_child=...)`).
 

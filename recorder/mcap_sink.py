@@ -34,10 +34,9 @@ from recorder.scene_proto import (ENTITY_LINES, ENTITY_SPHERES, ENTITY_TRIANGLES
                                   TRIANGLE_POINTS, encode_colors, encode_indices, encode_points, encode_scene_update)
 
 _FRAME = "world"
-# zstd level 2 in the logging thread (bench/recording_cost.py, 7 links): far cheaper than the default level 3;
-# its 1 MiB window (512 KiB at level 1) still reaches the previous step's triangle indices when the mesh
-# carries per-vertex colours (a 6720-vertex mesh with colours is 0.6 MB): with colours, level 1 made
-# 50 % larger files and was slower; without colours level 2 costs 0.08 ms/step more for 9 % smaller files.
+# zstd level 2 in the logging thread, chosen with bench/recording_cost.py (docs/experiments.md): cheaper than
+# the default level 3, and its 1 MiB window (512 KiB at level 1) still reaches the previous step's triangle
+# indices when the mesh carries per-vertex colours.
 _WRITE_OPTIONS = MCAPWriteOptions(compression_level=2, compression_threads=0)
 
 

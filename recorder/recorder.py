@@ -23,7 +23,7 @@ from recorder.errors import RecorderError, RecordingInterrupted
 from recorder.events import make_step
 
 FORMATS = ("rrd", "mcap")
-#: Default MCAP mesh interval, chosen with bench/recording_cost.py to keep both sinks within 3 ms per step.
+#: Default MCAP mesh interval (steps), chosen with bench/recording_cost.py (docs/experiments.md).
 MCAP_MESH_EVERY = 1
 _SIGNALS = (signal.SIGINT, signal.SIGTERM)
 

@@ -1,7 +1,7 @@
 """`foxglove.SceneUpdate` messages with many points, encoded with NumPy.
 
-Building one `foxglove.messages.Point3` per vertex costs about 5 ms for a 7-link mesh
-(6720 vertices); writing the protobuf wire format of the repeated points (and of the packed
+Building one `foxglove.messages.Point3` per vertex is slow for a robot mesh of thousands of
+vertices; writing the protobuf wire format of the repeated points (and of the packed
 triangle indices) directly from arrays costs a small fraction of that. The small parts (entity
 id, frame, timestamp, colour, line type) are still encoded by foxglove-sdk: protobuf lets
 serialised fields be concatenated, so the result is exactly a `foxglove.SceneUpdate` with one

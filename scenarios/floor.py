@@ -49,7 +49,7 @@ SCENARIO = "floor"
 LINKS = TABLE3_LINKS
 #: Control step of the scenarios, s (every preset keeps the default).
 STEP_DT = MPPIConfig.dt
-#: Horizons the oracle tries, steps, shortest first (the fastest reach of the fixed goal found is 8).
+#: Horizons the oracle tries, steps, shortest first.
 HORIZONS = (8, 10, 12, 15, 20, 25, 30, 40)
 #: Time sampling of the base-disk test, s (an overlap shorter than this may be missed: a lower bound).
 BASE_DT = 0.005

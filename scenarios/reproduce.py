@@ -41,7 +41,7 @@ the same command finishes an interrupted experiment.
 encodings, 1 epoch on a 20-configuration, 12^3-grid set; 64 MPPI samples,
 horizon 8, 10 steps; one environment or seed; timing: 3 representations at 4 / 7
 links and 250 / 1000 points) so that
-``all --quick`` runs in about half an hour on 2 cores; its numbers only show the pipeline works.
+``all --quick`` runs in a small fraction of the full budget's time; its numbers only show the pipeline works.
 
 Ctrl-C / SIGTERM: the network being trained is recorded as interrupted (the
 next run goes on from its last epoch), complete recordings are kept; exit 130 / 143.
@@ -426,7 +426,7 @@ def parse_args(argv=None):
                              "(run the same command again to finish).")
     p.add_argument("table", choices=(*TABLES, "all"), help="which experiment")
     p.add_argument("--out", default="runs", help="folder of the recordings (default runs/)")
-    p.add_argument("--quick", action="store_true", help="a smoke-sized version of every experiment (about half an hour)")
+    p.add_argument("--quick", action="store_true", help="a smoke-sized version of every experiment (a fraction of the time)")
     p.add_argument("--epochs", type=int, help=f"training epochs per network (default {PAPER_EPOCHS}, quick 1)")
     p.add_argument("--envs", type=int, help=f"Table III environments per representation (default {EpisodeBudget.envs})")
     p.add_argument("--envs-5000", type=int, metavar="N",
