@@ -49,6 +49,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from analysis.stats import wilson
 from ncedf.controller import Controller
 from ncedf.presets import PRESETS, Observation
 from ncedf.temperature import Fixed
@@ -82,8 +83,6 @@ VARIANTS: dict[str, tuple[str, dict]] = {
     "ours-guide": ("ours", {"guide": None}),
     "paper": ("paper", {}),
 }
-#: z for a 95% interval.
-Z95 = 1.959963984540054
 QUICK = {"links": "4,5,7", "seeds": 1, "envs": 2, "variants": "ours,paper", "max_steps": 60}
 
 
@@ -128,14 +127,6 @@ def changed(config, changes: dict):
             raise ValueError(f"no field {path!r} here (the stage is {part!r})")
         config = dataclasses.replace(config, **{stage: dataclasses.replace(part, **{field: value})})
     return config
-
-
-def wilson(k: int, n: int, z: float = Z95) -> tuple[float, float]:
-    """Wilson score interval of a rate k / n (n > 0)."""
-    p = k / n
-    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
-    return max(0.0, centre - half), min(1.0, centre + half)
 
 
 def episodes(args) -> list[tuple[str, EpisodeSettings]]:

@@ -29,6 +29,7 @@ from tqdm import tqdm
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from arguments import parse_list  # noqa: E402
 from ncedf.mppi import MPPIConfig  # noqa: E402
 from ncedf.robot import RobotSpec  # noqa: E402
 from recorder.cli import EXIT_STATUS, OneLineParser, Stopped, exit_with, stop_on_signals  # noqa: E402
@@ -37,16 +38,6 @@ from scenarios.floor import HORIZONS, LINKS  # noqa: E402
 from scenarios.oracle import OracleConfig, plan_reach  # noqa: E402
 from scenarios.spheres import TOLERANCE, make_environment  # noqa: E402
 
-
-
-def horizon_list(text: str) -> tuple[int, ...]:
-    try:
-        values = tuple(int(v) for v in text.split(",") if v)
-    except ValueError:
-        values = ()
-    if not values or min(values) < 1:
-        raise ValueError(f"--horizons must be a comma-separated list of integers >= 1, got {text!r}")
-    return values
 
 
 def recorded_collisions(folder: str, goal: str, envs: range) -> dict[int, list[str]]:
@@ -71,7 +62,7 @@ def main(argv=None) -> int:
     p.add_argument("--env0", type=int, default=0, help="first environment (default 0)")
     p.add_argument("--goal", type=goal_text, default="fixed", metavar="GOAL",
                    help="fixed, random or X,Y,Z in m (default fixed)")
-    p.add_argument("--horizons", default=",".join(map(str, HORIZONS)),
+    p.add_argument("--horizons", default=tuple(HORIZONS), type=lambda t: tuple(parse_list(t, int, "horizon", above_zero=True)),
                    help=f"horizons to try, steps (default {','.join(map(str, HORIZONS))})")
     p.add_argument("--starts", type=int, default=OracleConfig.starts,
                    help=f"random starts per horizon (default {OracleConfig.starts})")
@@ -79,10 +70,7 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     if args.envs < 1 or args.env0 < 0 or args.starts < 1:
         p.error(f"--envs and --starts must be >= 1 and --env0 >= 0, got {args.envs}, {args.starts}, {args.env0}")
-    try:
-        horizons = horizon_list(args.horizons)
-    except ValueError as exc:
-        p.error(str(exc))
+    horizons = args.horizons
     if args.runs and not Path(args.runs).is_dir():
         p.error(f"--runs: no such folder: {args.runs}")
     envs = range(args.env0, args.env0 + args.envs)

@@ -200,7 +200,7 @@ class McapSink:
         self._rows: list[dict] = []  # the /metrics rows written, for the summary record
 
     def log_run(self, meta: Mapping[str, Any]) -> None:
-        self._writer.write_metadata("run", schema.encode_meta(meta))
+        self._writer.write_metadata(schema.RUN, schema.encode_meta(meta))
 
     def log_step(self, s: Step) -> None:
         """Write one step; the mesh only when `step % mesh_every == 0`."""

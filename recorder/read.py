@@ -79,7 +79,7 @@ def _read_mcap(path: Path, with_state: bool) -> _Raw:
         raise RecorderError(f"{path} is not an MCAP recording") from None
     except Exception as exc:  # corrupt content: struct, decoding or decompression errors
         raise RecorderError(f"{path} is not a readable MCAP recording: {exc}") from None
-    raw = _Raw(meta=schema.decode_meta(found.metadata.get("run", {})), complete=found.footer)
+    raw = _Raw(meta=schema.decode_meta(found.metadata.get(schema.RUN, {})), complete=found.footer)
     raw.metrics = [json.loads(data) for _, data in found.messages[schema.METRICS]]
     for row in raw.metrics:
         for key, value in row.items():
@@ -286,7 +286,7 @@ def _summary_record(path: Path) -> dict[str, Any] | None:
     if not records or summary.RECORD not in records:
         return None
     outcome, stats = summary.decode(records[summary.RECORD])
-    return {**_run_row(path, "mcap", schema.decode_meta(records.get("run", {})), outcome, True),
+    return {**_run_row(path, "mcap", schema.decode_meta(records.get(schema.RUN, {})), outcome, True),
             **summary.columns(stats)}
 
 

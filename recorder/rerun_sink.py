@@ -216,7 +216,7 @@ class RerunSink:
 
     def log_run(self, meta: Mapping[str, Any]) -> None:
         values = rr.AnyValues(**schema.encode_meta(meta))
-        self._each(lambda rec: rec.send_property("run", values))
+        self._each(lambda rec: rec.send_property(schema.RUN, values))
 
     def _log_at(self, step: int, sim_time_ns: int, entity: str, *archetypes) -> None:
         """Log now (not queued) at the step's time, to every stream."""

@@ -14,7 +14,8 @@ from typing import Any, Mapping
 import numpy as np
 
 # ---------------------------------------------------------------- names
-RUN = "/run"
+#: The run's metadata: an MCAP metadata record and a Rerun recording property of this name.
+RUN = "run"
 MESH = "/world/robot/mesh"
 BACKBONE = "/world/robot/backbone"
 OBSTACLE_POINTS = "/world/obstacles/points"

@@ -287,12 +287,6 @@ class World:
         """Number of obstacles (the length of :func:`true_distances`)."""
         return len(self.spheres) + len(self.boxes) + len(self.meshes) + len(self.clouds)
 
-    def obstacle_labels(self) -> tuple[str, ...]:
-        """Names of the obstacles in the order of :func:`true_distances`: "sphere 0", "box 1", ..."""
-        return tuple(f"{kind} {i}" for kind, items in (("sphere", self.spheres), ("box", self.boxes),
-                                                       ("mesh", self.meshes), ("cloud", self.clouds))
-                     for i in range(len(items)))
-
     def sphere_centres(self, t: float) -> np.ndarray:
         """(S, 3) sphere centres at time t, m."""
         return self.sphere_track(np.asarray([t], np.float64))[0]
