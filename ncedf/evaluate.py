@@ -49,7 +49,11 @@ def timed_links(model) -> int:
     return model.spec.n_links if model.spec.tapered else 4
 
 
-def inference_ms(model, links: int, points: int = 500, repeats: int = 200, seed: int = 0) -> float:
+#: Obstacle points of the inference timing (about the cluttered scene's observed cloud).
+INFERENCE_POINTS = 500
+
+
+def inference_ms(model, links: int, points: int = INFERENCE_POINTS, repeats: int = 200, seed: int = 0) -> float:
     """Median wall time (ms) of ``robot_distance`` for one ``links``-link configuration."""
     spec = RobotSpec(links, **model.spec.link_geometry())
     k_arc, k_pts = jax.random.split(jax.random.PRNGKey(seed))
@@ -78,10 +82,13 @@ def report_link(model, val_cfg: ValidationConfig, args) -> None:
 def main(argv=None) -> int:
     from recorder.cli import OneLineParser
     p = OneLineParser(prog="python -m ncedf.evaluate", description=__doc__.split("\n\n")[0])
+    val = ValidationConfig()
     p.add_argument("--model", default=None, help="weights file or stem (default: the shipped model)")
-    p.add_argument("--configs", type=int, default=100, help="validation configurations (default 100)")
-    p.add_argument("--points", type=int, default=4096, help="random points per configuration (default 4096)")
-    p.add_argument("--seed", type=int, default=12345, help="validation seed")
+    p.add_argument("--configs", type=int, default=val.n_configs,
+                   help=f"validation configurations (default {val.n_configs})")
+    p.add_argument("--points", type=int, default=val.n_points,
+                   help=f"random points per configuration (default {val.n_points})")
+    p.add_argument("--seed", type=int, default=val.seed, help="validation seed")
     add_cache_option(p)
     args = p.parse_args(argv)
     enable_compile_cache(not args.no_cache)
@@ -103,7 +110,7 @@ def main(argv=None) -> int:
                 report_link(link, val_cfg, args)
             links = timed_links(model)
             print(f"inference: {inference_ms(model, links):.3f} ms for one {links}-link configuration against "
-                  f"500 points (median, {jax.devices()[0].platform})")
+                  f"{INFERENCE_POINTS} points (median, {jax.devices()[0].platform})")
     except Stopped as stop:
         print(f"stopped by {stop}: nothing written", file=sys.stderr)
         return EXIT_STATUS[stop.signum]

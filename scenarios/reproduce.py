@@ -69,9 +69,8 @@ TABLE3_SHAPES = ("ncedf", "spheres", "pointcloud:1000", "pointcloud:5000")
 TABLE4_LINKS = (4, 5, 7)
 #: Timing setting of Table I (paper Sec. VI-B): links, MPPI samples, horizon.
 TIMING_LINKS, TIMING_SAMPLES, TIMING_HORIZON = 4, 800, 20
-#: Obstacle points of the inference timing.
-INFERENCE_POINTS = 500
-#: Timing figure: representations, link counts (at INFERENCE_POINTS points), point counts (at 4 links).
+#: Timing figure: representations, link counts (at ``ncedf.evaluate.INFERENCE_POINTS`` points), point counts
+#: (at 4 links).
 TIMING_SHAPES = TABLE3_SHAPES
 TIMING_LINK_COUNTS = (4, 5, 7)
 TIMING_POINT_COUNTS = (100, 250, 500, 1000, 2000, 5000)
@@ -104,7 +103,7 @@ class NetworkBudget:
 class TimingBudget:
     """The timings: ``repeats`` timed calls per network or case (after compilation), the MPPI step's
     ``samples`` and ``horizon``, and the timing experiment's grid (``shapes`` by ``links`` at
-    ``INFERENCE_POINTS`` points, and by ``points`` at ``TIMING_LINKS`` links)."""
+    ``ncedf.evaluate.INFERENCE_POINTS`` points, and by ``points`` at ``TIMING_LINKS`` links)."""
 
     repeats: int = 20
     samples: int = TIMING_SAMPLES
@@ -302,6 +301,7 @@ def run_networks(table: str, out: Path, budget: Budget, seed: int, command: str)
     """Train every network of ``table`` not yet recorded; 0."""
     from tqdm import tqdm
 
+    from ncedf import evaluate
     from ncedf.data import DatasetConfig, ValidationConfig, load_dataset
     from ncedf.robot import RobotSpec
     from scenarios.sweep import read_complete
@@ -318,7 +318,7 @@ def run_networks(table: str, out: Path, budget: Budget, seed: int, command: str)
         return 0
     spec = RobotSpec(n_links=1)
     data, val = load_dataset(data_cfg, spec), load_dataset(val_cfg, spec)
-    points = timing_points(INFERENCE_POINTS, seed)
+    points = timing_points(evaluate.INFERENCE_POINTS, seed)
     for net in tqdm(todo, desc=table, unit="network", file=sys.stderr, dynamic_ncols=True):
         train_network(net, where, budget, data, val, points, seed)
     return 0
@@ -372,7 +372,10 @@ def run_episodes(table: str, out: Path, budget: Budget, seed: int, command: str,
 
 # ---------------------------------------------------------------- MPPI step time per representation
 def timing_cases(budget: Budget) -> list[tuple[str, int, int]]:
-    """(shape, links, points): link counts at INFERENCE_POINTS points, point counts at TIMING_LINKS links."""
+    """(shape, links, points): link counts at ``ncedf.evaluate.INFERENCE_POINTS`` points, point counts at
+    TIMING_LINKS links."""
+    from ncedf.evaluate import INFERENCE_POINTS
+
     cases = [(s, l, INFERENCE_POINTS) for s in budget.timing.shapes for l in budget.timing.links]
     cases += [(s, TIMING_LINKS, p) for s in budget.timing.shapes for p in budget.timing.points]
     return list(dict.fromkeys(cases))

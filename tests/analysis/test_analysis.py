@@ -27,6 +27,7 @@ import pytest
 
 from analysis.load import NOT_RECORDED, machine_name
 from ncedf.data import DatasetConfig, ValidationConfig, load_dataset
+from ncedf.evaluate import INFERENCE_POINTS
 from ncedf.model import load_model
 from ncedf.robot import RobotSpec
 from ncedf.train import evaluate_model
@@ -98,7 +99,7 @@ def folder(tmp_path_factory, cache):
     data, val = load_dataset(data_cfg, spec), load_dataset(val_cfg, spec)
     where = reproduce.folder(runs, "table2", TINY_BUDGET)
     reproduce.write_manifest(where, "table2", TINY_BUDGET, "test", {})
-    points = reproduce.timing_points(reproduce.INFERENCE_POINTS)
+    points = reproduce.timing_points(INFERENCE_POINTS)
     for net in reproduce.networks("table2", TINY_BUDGET):
         reproduce.train_network(net, where, TINY_BUDGET, data, val, points, seed=0)
     assert reproduce.run_timing(runs, TINY_BUDGET, 0, "test") == 0
@@ -297,7 +298,7 @@ def test_a_network_stopped_midway_goes_on_from_its_last_epoch(folder, tmp_path, 
     data = load_dataset(DatasetConfig(n_configs=nets.configs, grid=nets.grid, n_surface=nets.surface), spec)
     val = load_dataset(ValidationConfig(n_configs=nets.val_configs, n_points=nets.val_points,
                                         n_surface=nets.val_surface), spec)
-    points = reproduce.timing_points(reproduce.INFERENCE_POINTS)
+    points = reproduce.timing_points(INFERENCE_POINTS)
     save = ncedf.train_state.save_state
 
     def save_then_stop(path, state, fingerprint):
