@@ -115,6 +115,13 @@ def main() -> None:
     parser.add_argument("--load-steps", type=int, default=20)
     parser.add_argument("--skip-logging", action="store_true", help="only the load_runs benchmark")
     args = parser.parse_args()
+    counts = {"links": args.links, "steps": args.steps, "mcap-mesh-every": min(args.mcap_mesh_every),
+              "flush-every": args.flush_every, "repeat": args.repeat, "load-steps": args.load_steps}
+    for name, value in counts.items():
+        if value < 1:
+            parser.error(f"--{name} must be >= 1, got {value}")
+    if args.load_runs < 0:
+        parser.error(f"--load-runs must be >= 0, got {args.load_runs}")
     with tempfile.TemporaryDirectory() as tmp:
         if not args.skip_logging:
             bench_logging(args, Path(tmp))
