@@ -22,7 +22,7 @@ if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from recorder import load_runs, load_summaries, mcap_scan, summary  # noqa: E402
-from recorder.cli import OneLineParser, exit_with  # noqa: E402
+from recorder.cli import OneLineParser, exit_with, stoppable  # noqa: E402
 
 TARGET = 4000
 
@@ -62,4 +62,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    exit_with(main())
+    exit_with(stoppable(main))

@@ -22,7 +22,7 @@ import numpy as np  # noqa: E402
 from arguments import positive  # noqa: E402
 from ncedf.robot import sample_arc_lengths  # noqa: E402
 from ncedf.route import RouteConfig, _refined, ends  # noqa: E402
-from recorder.cli import OneLineParser, exit_with  # noqa: E402
+from recorder.cli import OneLineParser, exit_with, stoppable  # noqa: E402
 from scenarios.charging import TOLERANCE  # noqa: E402
 from scenarios.episode import ANGLE_TOLERANCE, EpisodeSettings, build_scene  # noqa: E402
 
@@ -52,4 +52,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    exit_with(main())
+    exit_with(stoppable(main))

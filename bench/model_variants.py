@@ -18,7 +18,7 @@ from ncedf.data import DatasetConfig, ValidationConfig, load_dataset
 from ncedf.model import ModelConfig
 from ncedf.robot import RobotSpec
 from ncedf.train import TrainConfig, train
-from recorder.cli import OneLineParser
+from recorder.cli import OneLineParser, exit_with, stoppable
 
 # name -> (model settings, train settings, extra near-surface points)
 VARIANTS = {
@@ -56,4 +56,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    exit_with(stoppable(main))

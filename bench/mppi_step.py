@@ -47,7 +47,7 @@ from ncedf.controller import Controller, ControllerConfig
 from ncedf.mppi import MPPIConfig, mppi_step
 from ncedf.robot import RobotSpec, project_state
 from ncedf.shapes import make_shape
-from recorder.cli import OneLineParser
+from recorder.cli import OneLineParser, exit_with, stoppable
 from scenarios import cluttered
 from scenarios.observe import make_observer
 
@@ -275,4 +275,4 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    main()
+    exit_with(stoppable(main))

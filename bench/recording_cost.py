@@ -13,17 +13,13 @@ closing the files, for the Rerun sink alone, the MCAP sink alone and both. The b
 
 from __future__ import annotations
 
-import sys
 from concurrent.futures import ProcessPoolExecutor
 import tempfile
 import time
 from pathlib import Path
 
-# Run as a script, this file's folder comes first on sys.path and its name would shadow the package.
-sys.path = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
-
 from recorder import Recorder, load_runs
-from recorder.cli import OneLineParser
+from recorder.cli import OneLineParser, exit_with, stoppable
 from recorder.synthetic import SyntheticRun
 
 BUDGET_MS = 3.0
@@ -130,4 +126,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    exit_with(stoppable(main))

@@ -43,7 +43,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from arguments import positive  # noqa: E402
 from ncedf.robot import RobotSpec  # noqa: E402
-from recorder.cli import OneLineParser, exit_with  # noqa: E402
+from recorder.cli import OneLineParser, exit_with, stoppable  # noqa: E402
 from scenarios.episode import goal_text  # noqa: E402
 from scenarios.floor import BASE_DT, LINKS, STEP_DT, Reach, first_base_hit, hit_step  # noqa: E402
 from scenarios.oracle import OracleConfig  # noqa: E402
@@ -104,4 +104,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    exit_with(main())
+    exit_with(stoppable(main))

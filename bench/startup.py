@@ -21,7 +21,7 @@ import time
 from pathlib import Path
 
 from arguments import parse_list
-from recorder.cli import OneLineParser
+from recorder.cli import OneLineParser, exit_with, stoppable
 
 COMMANDS = {
     "cluttered7": ["-m", "scenarios.cluttered", "--links", "7", "--max-steps", "1", "--formats", "mcap"],
@@ -85,4 +85,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    exit_with(stoppable(main))

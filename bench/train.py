@@ -24,7 +24,7 @@ from ncedf.model import ENCODINGS, NCEDF, ModelConfig, model_spec
 from ncedf.robot import RobotSpec
 from ncedf.train import (TrainConfig, evaluate_model, initial_state, make_epoch, make_optimizer, make_step,
                          training_arrays)
-from recorder.cli import OneLineParser
+from recorder.cli import OneLineParser, exit_with, stoppable
 
 
 def former_epoch(model_cfg: ModelConfig, cfg: TrainConfig, optimizer, n_samples: int):
@@ -87,4 +87,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    exit_with(stoppable(main))

@@ -10,7 +10,9 @@ import os
 import signal
 import sys
 import warnings
-from typing import NoReturn
+from typing import Callable, NoReturn
+
+from recorder.errors import RecordingInterrupted
 
 #: Exit status per signal: 128 + its number.
 EXIT_STATUS = {signal.SIGINT: 130, signal.SIGTERM: 143}
@@ -63,6 +65,17 @@ def stop_on_signals():
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+
+
+def stoppable(body: Callable[[], int | None], kept: str = "the rows above are complete") -> int:
+    """``body()``'s status (None: 0), or 130 / 143 after SIGINT / SIGTERM (:func:`stop_on_signals`, or a
+    recording's own handler) with one line on stderr saying what was ``kept``: a benchmark's stop."""
+    try:
+        with stop_on_signals():
+            return body() or 0
+    except (Stopped, RecordingInterrupted) as stop:
+        print(f"interrupted ({signal.Signals(stop.signum).name}): {kept}", file=sys.stderr)
+        return EXIT_STATUS[stop.signum]
 
 
 def exit_with(status: int) -> NoReturn:

@@ -6,4 +6,9 @@ class RecorderError(Exception):
 
 
 class RecordingInterrupted(KeyboardInterrupt):
-    """Raised by `Recorder.log_step` after a SIGTERM/SIGINT once the current step is safely recorded."""
+    """Raised by `Recorder.log_step` after a SIGTERM/SIGINT once the current step is safely recorded;
+    `signum` is the signal's number."""
+
+    def __init__(self, message: str, signum: int):
+        super().__init__(message)
+        self.signum = signum

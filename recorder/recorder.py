@@ -200,7 +200,7 @@ class Recorder:
         if self.closed:  # closing already: let it finish
             return
         if self._signal is not None:
-            raise RecordingInterrupted(f"signal {signal.Signals(signum).name} (second)")
+            raise RecordingInterrupted(f"signal {signal.Signals(signum).name} (second)", signum)
         self._signal = signum
 
     # ------------------------------------------------------------ events
@@ -264,7 +264,7 @@ class Recorder:
         if self._steps % self._flush_every == 0:
             self.flush()
         if self._signal is not None:
-            raise RecordingInterrupted(f"signal {signal.Signals(self._signal).name}")
+            raise RecordingInterrupted(f"signal {signal.Signals(self._signal).name}", self._signal)
 
     def _check_topology(self, triangles: np.ndarray | None, n_vertices: int) -> None:
         if self._triangles is None:

@@ -183,8 +183,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     except RecordingInterrupted as exc:
+        from recorder.cli import EXIT_STATUS
+
         print(f"interrupted: {exc}", file=sys.stderr)
-        return 130
+        return EXIT_STATUS[exc.signum]
     return 0
 
 

@@ -488,11 +488,6 @@ class EpisodeResult:
                 "first_collision_step": self.first_collision_step}
 
 
-def _signal_name(exc: BaseException) -> str:
-    found = re.search(r"SIG[A-Z]+", str(exc))
-    return found.group(0) if found and found.group(0) in signal.Signals.__members__ else "SIGINT"
-
-
 # ------------------------------------------------------------------ the episode
 class Episode:
     """A prepared episode: scene, controller and observation built and validated, nothing written.
@@ -574,7 +569,7 @@ class Episode:
                 recorder.log_meshes([(mesh.vertices, mesh.faces) for mesh in scene.world.meshes])
             result = loop.run(arc, goal_jnp, start_distance)
         except RecordingInterrupted as exc:
-            result = loop.result("interrupted", signal_name=_signal_name(exc))
+            result = loop.result("interrupted", signal_name=signal.Signals(exc.signum).name)
         except BaseException:
             if recorder is not None and not recorder.closed:
                 recorder.finish(loop.result("interrupted").outcome_record())

@@ -510,7 +510,7 @@ def main(argv=None) -> int:
               file=sys.stderr)
         return EXIT_STATUS[exc.signum]
     except RecordingInterrupted as exc:  # a signal while a network was recorded: it is marked interrupted
-        signum = signal.SIGTERM if "SIGTERM" in str(exc) else signal.SIGINT
+        signum = signal.Signals(exc.signum)
         print(f"stopped by {signum.name}: the network in training is recorded as interrupted, complete "
               f"recordings under {out} are kept; run the same command to finish", file=sys.stderr)
         return EXIT_STATUS[signum]

@@ -103,3 +103,24 @@ def test_an_unknown_option_of_a_benchmark_is_a_one_line_error(script, capsys, mo
     monkeypatch.syspath_prepend(str(script.parent))
     err = one_line_error(lambda: runpy.run_path(str(script), run_name="__main__"), capsys)
     assert ": error: " in err
+
+
+@pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM"])
+def test_a_benchmark_stopped_by_a_signal_says_so_in_one_line(sig, capsys, monkeypatch):
+    """``recorder.cli.stoppable``, the stop of the benchmarks' ``__main__``: a signal in the middle of the
+    work ends it with one line and the signal's exit status, and no traceback."""
+    import os
+    import signal
+    import time
+
+    from recorder.cli import stoppable
+
+    def work():
+        print("row 1", flush=True)
+        os.kill(os.getpid(), getattr(signal, sig))
+        time.sleep(5)
+        print("row 2")
+
+    assert stoppable(work) == 128 + getattr(signal, sig)
+    out = capsys.readouterr()
+    assert out.out == "row 1\n" and out.err == f"interrupted ({sig}): the rows above are complete\n"
