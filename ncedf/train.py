@@ -40,6 +40,7 @@ from ncedf.model import (ENCODINGS, MLP, NCEDF, OUTPUTS, ModelConfig, encode, in
 from ncedf.robot import RobotSpec
 from ncedf.train_state import TrainState
 from ncedf.units import to_reference, unit
+from ncedf.validate import check_fields
 
 SCHEDULES = ("cosine", "constant")
 
@@ -75,21 +76,8 @@ class TrainConfig:
     seed: int = 0
 
     def __post_init__(self):
-        if self.epochs < 1:
-            raise ValueError(f"epochs must be >= 1, got {self.epochs}")
-        if self.batch_size < 1:
-            raise ValueError(f"batch_size must be >= 1, got {self.batch_size}")
-        if not self.learning_rate > 0:
-            raise ValueError(f"learning_rate must be > 0, got {self.learning_rate}")
-        if self.schedule not in SCHEDULES:
-            raise ValueError(f"schedule must be one of {SCHEDULES}, got {self.schedule!r}")
-        for name in ("weight_decay", "lambda_eikonal", "lambda_over"):
-            if getattr(self, name) < 0:
-                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
-        if not self.near_weight > 0:
-            raise ValueError(f"near_weight must be > 0, got {self.near_weight}")
-        if not self.clip_norm > 0:
-            raise ValueError(f"clip_norm must be > 0, got {self.clip_norm}")
+        check_fields(self, integers=("epochs", "batch_size"), positive=("learning_rate", "near_weight", "clip_norm"),
+                     non_negative=("weight_decay", "lambda_eikonal", "lambda_over"), choices={"schedule": SCHEDULES})
 
 
 def training_arrays(data: LinkDataset, model_cfg: ModelConfig) -> tuple[jnp.ndarray, jnp.ndarray]:

@@ -113,11 +113,16 @@ def test_short_training_run_reduces_validation_error():
     assert model.link_distance(jnp.zeros((2, 3)), 0.1, 0.2).shape == (2,)
 
 
-def test_cli_rejects_bad_values_with_one_line(capsys, tmp_path):
-    assert main(["--epochs", "0", "--out", str(tmp_path / "m")]) == 2
-    err = capsys.readouterr().err.strip()
-    assert err == "error: epochs must be >= 1, got 0"
-    assert not (tmp_path / "m.msgpack").exists()
+@pytest.mark.parametrize("option, value, message", [
+    ("--epochs", "0", "TrainConfig.epochs must be >= 1, got 0"),
+    ("--lambda-eikonal", "nan", "TrainConfig.lambda_eikonal must be finite, got nan"),
+    ("--lr", "inf", "TrainConfig.learning_rate must be finite, got inf"),
+    ("--lambda-over", "-1", "TrainConfig.lambda_over must be >= 0, got -1.0"),
+])
+def test_cli_rejects_bad_values_with_one_line(capsys, tmp_path, option, value, message):
+    assert main([option, value, "--out", str(tmp_path / "m")]) == 2
+    assert capsys.readouterr().err.strip() == f"error: {message}"
+    assert not list(tmp_path.iterdir())
 
 
 def test_cli_names_weights_it_cannot_write_before_training(capsys, tmp_path, monkeypatch):
