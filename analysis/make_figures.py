@@ -22,7 +22,7 @@ from analysis.cli import run_until_stopped  # noqa: E402
 from analysis.load import load, recordings_folder  # noqa: E402
 from analysis.make_tables import report_problems  # noqa: E402
 from recorder import RecorderError  # noqa: E402
-from recorder.cli import OneLineParser, exit_with  # noqa: E402
+from recorder.cli import OneLineParser, exit_with, path_text  # noqa: E402
 from recorder.recorder import check_folder  # noqa: E402
 
 
@@ -30,8 +30,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     p = OneLineParser(prog="python analysis/make_figures.py", description=__doc__.split("\n\n")[0])
     p.add_argument("runs", nargs="?", default=None,
                    help="folder of recordings (default runs/, or the current folder where there is none)")
-    p.add_argument("--out", default="figures", help="output folder (default figures/)")
-    p.add_argument("--model", help="N-CEDF weights for Fig. 3 (default: the shipped model)")
+    p.add_argument("--out", default="figures", type=path_text, help="output folder (default figures/)")
+    p.add_argument("--model", type=path_text, help="N-CEDF weights for Fig. 3 (default: the shipped model)")
     return p.parse_args(argv)
 
 

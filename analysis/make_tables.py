@@ -22,7 +22,7 @@ from analysis.cli import run_until_stopped  # noqa: E402
 from analysis.load import load, recordings_folder  # noqa: E402
 from analysis.tables import BUILDERS  # noqa: E402
 from recorder import RecorderError  # noqa: E402
-from recorder.cli import OneLineParser, exit_with  # noqa: E402
+from recorder.cli import OneLineParser, exit_with, path_text  # noqa: E402
 from recorder.recorder import check_creatable  # noqa: E402
 
 
@@ -30,7 +30,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     p = OneLineParser(prog="python analysis/make_tables.py", description=__doc__.split("\n\n")[0])
     p.add_argument("runs", nargs="?", default=None,
                    help="folder of recordings (default runs/, or the current folder where there is none)")
-    p.add_argument("--out", default="tables", help="output folder (default tables/)")
+    p.add_argument("--out", default="tables", type=path_text, help="output folder (default tables/)")
     return p.parse_args(argv)
 
 

@@ -267,7 +267,8 @@ def _output_problem(stem: Path, overwrite: bool) -> str | None:
 
 
 def parse_args(argv=None) -> argparse.Namespace:
-    from recorder.cli import OneLineParser
+    from recorder.cli import OneLineParser, path_text
+
     p = OneLineParser(prog="python -m ncedf.train", description=__doc__.split("\n\n")[0])
     model, train, data, val, robot = ModelConfig(), TrainConfig(), DatasetConfig(), ValidationConfig(), RobotSpec(1)
     p.add_argument("--layers", type=int, default=model.layers, help=f"Dense layers incl. output (default {model.layers})")
@@ -300,8 +301,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--arc-max", type=float, default=robot.l_max,
                    help=f"longest chamber arc length, m (default {robot.l_max:g})")
     p.add_argument("--seed", type=int, default=train.seed)
-    p.add_argument("--out", required=True, help="output stem: writes OUT.msgpack and OUT.json")
-    p.add_argument("--record", metavar="STEM", help="also record the run (per-epoch /metrics) to STEM.rrd and STEM.mcap")
+    p.add_argument("--out", type=path_text, required=True, help="output stem: writes OUT.msgpack and OUT.json")
+    p.add_argument("--record", type=path_text, metavar="STEM", help="also record the run (per-epoch /metrics) to STEM.rrd and STEM.mcap")
     p.add_argument("--overwrite", action="store_true", help="overwrite existing weights and recording")
     add_cache_option(p)
     return p.parse_args(argv)

@@ -25,6 +25,14 @@ class OneLineParser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message}\n")
 
 
+def path_text(text: str) -> str:
+    """An argparse type: a path, not the empty string (which names the current folder, or a file
+    stem with no name)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError(f"must name a path, got {text!r}")
+    return text
+
+
 @contextlib.contextmanager
 def one_line_warnings(once=()):
     """Inside the block, warnings are shown as ``warning: message`` on stderr (not Python's source

@@ -17,6 +17,7 @@ streams the run to a Rerun Viewer (see `recorder.viewer`); with `--print-steps` 
 
 from __future__ import annotations
 
+import math
 import sys
 import time
 
@@ -138,11 +139,11 @@ class SyntheticRun:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from recorder.cli import OneLineParser
+    from recorder.cli import OneLineParser, path_text
     from recorder.recorder import MCAP_MESH_EVERY, Recorder
 
     parser = OneLineParser(prog="python -m recorder.synthetic", description=__doc__.split("\n\n")[0])
-    parser.add_argument("out", help="output path without suffix")
+    parser.add_argument("out", type=path_text, help="output path without suffix")
     parser.add_argument("--steps", type=int, default=20)
     parser.add_argument("--links", type=int, default=4)
     parser.add_argument("--seed", type=int, default=0)
@@ -159,8 +160,8 @@ def main(argv: list[str] | None = None) -> int:
     for name in ("steps", "links", "mcap_mesh_every", "flush_every"):
         if getattr(args, name) < 1:
             parser.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
-    if not (args.dt > 0 and args.step_delay >= 0):
-        parser.error(f"--dt must be > 0 and --step-delay >= 0, got {args.dt} and {args.step_delay}")
+    if not (0 < args.dt < math.inf and 0 <= args.step_delay < math.inf):
+        parser.error(f"--dt must be finite and > 0, and --step-delay finite and >= 0, got {args.dt} and {args.step_delay}")
     if isinstance(args.viewer, str):
         try:
             check_url(args.viewer)

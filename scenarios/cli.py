@@ -24,7 +24,7 @@ from typing import Callable
 from ncedf.compile_cache import add_cache_option, enable_compile_cache
 from ncedf.presets import DEFAULT, PRESETS, SUMMARIES
 from recorder import RecorderError
-from recorder.cli import EXIT_STATUS, OneLineParser, Stopped, one_line_warnings, stop_on_signals
+from recorder.cli import EXIT_STATUS, OneLineParser, Stopped, one_line_warnings, path_text, stop_on_signals
 from recorder.recorder import FORMATS, check_writable, output_paths
 from scenarios.episode import Episode, EpisodeResult, EpisodeSettings
 
@@ -47,7 +47,7 @@ def make_parser(scenario: str, description: str, *, links: int = 4, max_steps: i
     p.add_argument("--shape", default="ncedf",
                    help="robot-shape representation of the controller: ncedf, spheres, pointcloud:P, exact "
                         "(default ncedf)")
-    p.add_argument("--model", metavar="PATH", help="N-CEDF weights: the robot's links and, for --shape ncedf, its "
+    p.add_argument("--model", metavar="PATH", type=path_text, help="N-CEDF weights: the robot's links and, for --shape ncedf, its "
                                                    "network (default: the shipped model)")
     p.add_argument("--scale", metavar="S", help="scale the scene (obstacles, speeds, goal) by S about the base; "
                                                 "--goal is unscaled (default 1)")
@@ -56,7 +56,7 @@ def make_parser(scenario: str, description: str, *, links: int = 4, max_steps: i
     p.add_argument("--samples", type=int, help="MPPI rollouts (default: the controller's)")
     p.add_argument("--horizon", type=int, help="MPPI horizon in steps (default: the controller's)")
     p.add_argument("--max-steps", type=int, help=f"step budget (default {max_steps})")
-    p.add_argument("--out", default="recording", help="recording path without suffix (default: recording -> "
+    p.add_argument("--out", default="recording", type=path_text, help="recording path without suffix (default: recording -> "
                                                       "recording.rrd, recording.mcap)")
     p.add_argument("--formats", default=",".join(FORMATS), help="comma-separated subset of rrd,mcap (default rrd,mcap)")
     p.add_argument("--mesh-every", type=int, default=1, help="record the robot mesh every N steps (default 1)")

@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from recorder.cli import path_text
 from scenarios.cli import base_settings, make_parser, run_cli
 from scenarios.episode import (EpisodeSettings, GoalWarning, Scene, make_scene, option_positive, option_vector,
                                require_fixed_goal, scenario_options)
@@ -101,7 +102,8 @@ def warn_of_the_goal(scene: Scene, named: str) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = make_parser("custom", __doc__, max_steps=MAX_STEPS)
-    parser.add_argument("--obstacles", required=True, metavar="FILE", help="obstacle mesh or point-cloud file")
+    parser.add_argument("--obstacles", required=True, type=path_text, metavar="FILE",
+                        help="obstacle mesh or point-cloud file")
     parser.add_argument("--goal", required=True, metavar="X,Y,Z", help="goal position, m")
     parser.add_argument("--offset", default="0,0,0", metavar="X,Y,Z", help="shift of the obstacle, m (default 0,0,0)")
     parser.add_argument("--density", default=str(DENSITY),

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import dataclasses
 import re
-import signal
 import sys
 import time
 from pathlib import Path
@@ -37,7 +36,7 @@ from ncedf.geometry import robot_mesh_arrays
 from ncedf.mppi import MPPIConfig
 from ncedf.robot import RobotSpec, forward_kinematics
 from recorder import Recorder, RecordingInterrupted
-from recorder.cli import EXIT_STATUS, OneLineParser, Stopped, exit_with, stop_on_signals
+from recorder.cli import EXIT_STATUS, OneLineParser, Stopped, exit_with, path_text, stop_on_signals
 from scenarios.episode import obstacle_shapes
 from scenarios.oracle import OracleConfig, closest_approach, plan_reach
 from scenarios.spheres import MAX_STEPS, TOLERANCE, make_environment
@@ -187,7 +186,7 @@ def describe(links: int, goal_kind: str, env: int, verdict: Verdict) -> str:
 def parse_args(argv=None):
     p = OneLineParser(prog="python -m scenarios.floor", description=__doc__.split("\n\n")[0],
                       epilog="Exit status: 0 done, 2 bad arguments, 130/143 interrupted (run it again to finish).")
-    p.add_argument("runs", help="folder of sphere recordings (a sweep's or the reproduction's)")
+    p.add_argument("runs", type=path_text, help="folder of sphere recordings (a sweep's or the reproduction's)")
     p.add_argument("--starts", type=int, default=OracleConfig.starts,
                    help=f"random starts of each oracle search (default {OracleConfig.starts})")
     args = p.parse_args(argv)
@@ -227,8 +226,7 @@ def run_floor(folder: Path, starts: int = OracleConfig.starts) -> int:
                     tqdm.write(describe(links, goal_kind, env, verdict), file=sys.stdout)
                 done += 1
     except (Stopped, RecordingInterrupted) as stop:
-        signum = stop.signum if isinstance(stop, Stopped) else \
-            (signal.SIGTERM if "SIGTERM" in str(stop) else signal.SIGINT)
+        signum = stop.signum
         print(f"interrupted: {done} of {len(todo)} verdicts recorded in {out}; the same command finishes "
               "the rest", file=sys.stderr)
         return EXIT_STATUS[signum]

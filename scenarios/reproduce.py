@@ -422,13 +422,13 @@ def run_table(table: str, out: Path, budget: Budget, seed: int, command: str, ex
 
 # ---------------------------------------------------------------- CLI
 def parse_args(argv=None):
-    from recorder.cli import OneLineParser
+    from recorder.cli import OneLineParser, path_text
 
     p = OneLineParser(prog="python -m scenarios.reproduce", description=__doc__.split("\n\n")[0],
                       epilog="Exit status: 0 done, 1 some episodes failed, 2 bad arguments, 130/143 interrupted "
                              "(run the same command again to finish).")
     p.add_argument("table", choices=(*TABLES, "all"), help="which experiment")
-    p.add_argument("--out", default="runs", help="folder of the recordings (default runs/)")
+    p.add_argument("--out", type=path_text, default="runs", help="folder of the recordings (default runs/)")
     p.add_argument("--quick", action="store_true", help="a smoke-sized version of every experiment (a fraction of the time)")
     p.add_argument("--epochs", type=int, help=f"training epochs per network (default {PAPER_EPOCHS}, quick 1)")
     p.add_argument("--envs", type=int, help=f"Table III environments per representation (default {EpisodeBudget.envs})")

@@ -76,7 +76,7 @@ from typing import TYPE_CHECKING, Callable, Sequence
 from tqdm import tqdm
 
 from recorder import IncompleteRecordingWarning, RecorderError, RecordingInterrupted, load_run
-from recorder.cli import EXIT_STATUS, OneLineParser, Stopped, exit_with, one_line_warnings, stop_on_signals
+from recorder.cli import EXIT_STATUS, OneLineParser, Stopped, exit_with, one_line_warnings, path_text, stop_on_signals
 from recorder.recorder import FORMATS, check_creatable, output_paths
 from scenarios import manifest
 
@@ -704,11 +704,11 @@ def parse_args(argv=None) -> argparse.Namespace:
     ep.add_argument("--max-steps", type=int, help="step budget (default: the scenario's)")
     ep.add_argument("--goal", metavar="GOAL", help=f"{', '.join(GOALS)} or X,Y,Z in m (spheres and cluttered; "
                                                    f"default {EpisodeSettings.goal})")
-    ep.add_argument("--model", help="N-CEDF weights: the robot's links and its network (default: the shipped model)")
+    ep.add_argument("--model", type=path_text, help="N-CEDF weights: the robot's links and its network (default: the shipped model)")
     ep.add_argument("--option", type=_option, action="append", default=[], metavar="KEY=VALUE",
                     help="scenario option, repeatable (e.g. custom: obstacles=FILE, an absolute path for Ray)")
     run = p.add_argument_group("running")
-    run.add_argument("--out", required=True, help="folder of the recordings")
+    run.add_argument("--out", required=True, type=path_text, help="folder of the recordings")
     run.add_argument("--formats", type=_csv(str, "formats"), default=DEFAULT_FORMATS,
                      help=f"recording formats, of {', '.join(FORMATS)} (default mcap)")
     run.add_argument("--executor", choices=EXECUTORS, default="local")

@@ -124,3 +124,15 @@ def test_a_benchmark_stopped_by_a_signal_says_so_in_one_line(sig, capsys, monkey
     assert stoppable(work) == 128 + getattr(signal, sig)
     out = capsys.readouterr()
     assert out.out == "row 1\n" and out.err == f"interrupted ({sig}): the rows above are complete\n"
+
+
+@pytest.mark.parametrize("module, argv", [
+    ("scenarios.cluttered", ["--out", ""]), ("scenarios.sweep", ["--scenario", "cluttered", "--out", ""]),
+    ("scenarios.reproduce", ["table1", "--quick", "--out", ""]), ("ncedf.train", ["--out", " "]),
+    ("analysis.make_tables", ["--out", ""]), ("recorder.synthetic", [""]), ("scenarios.floor", [""]),
+])
+def test_an_empty_path_is_a_one_line_error_and_nothing_is_written(module, argv, capsys, tmp_path, monkeypatch):
+    """The empty string names no file stem, and as a folder the current one: refused before any work."""
+    monkeypatch.chdir(tmp_path)
+    err = one_line_error(lambda: importlib.import_module(module).main(argv), capsys)
+    assert "must name a path" in err and not list(tmp_path.iterdir())
