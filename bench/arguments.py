@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 
 
 def parse_list(text: str, cast, name: str, allowed=None, above_zero: bool = False) -> list:
@@ -18,8 +19,8 @@ def parse_list(text: str, cast, name: str, allowed=None, above_zero: bool = Fals
     bad = [v for v in values if allowed is not None and v not in allowed]
     if bad:
         raise argparse.ArgumentTypeError(f"unknown {name} {bad[0]!r}; choose from {', '.join(map(str, allowed))}")
-    if above_zero and any(v <= 0 for v in values):
-        raise argparse.ArgumentTypeError(f"{name} must be > 0, got {text!r}")
+    if above_zero and not all(0 < v < math.inf for v in values):
+        raise argparse.ArgumentTypeError(f"{name} must be finite and > 0, got {text!r}")
     return values
 
 
@@ -36,4 +37,15 @@ def positive(text: str) -> int:
         raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
     if value < 1:
         raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
+    return value
+
+
+def non_negative(text: str) -> int:
+    """An integer >= 0."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
     return value

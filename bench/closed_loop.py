@@ -57,7 +57,7 @@ from recorder.cli import EXIT_STATUS, OneLineParser, Stopped, exit_with, stop_on
 from scenarios import WORLDS
 from scenarios.episode import Episode, EpisodeSettings, build_scene, option_positive
 
-from arguments import parse_list, positive
+from arguments import non_negative, parse_list, positive
 from solver_time import solver_times
 
 #: name -> (preset, changes: "stage.field" or "stage" -> value). ``paper`` also takes ``ours``'s sizes.
@@ -265,13 +265,13 @@ def main(argv=None) -> int:
     p.add_argument("--links", default="4,5,7", type=lambda t: parse_list(t, int, "links", above_zero=True),
                    help="cluttered link counts (default 4,5,7)")
     p.add_argument("--seeds", type=positive, default=3, help="cluttered controller seeds per link count (default 3)")
-    p.add_argument("--seed0", type=int, default=0,
+    p.add_argument("--seed0", type=non_negative, default=0,
                    help="first controller seed; the spheres' episodes use this one (default 0)")
     p.add_argument("--density", type=positive_arg("density"),
                    help="cluttered: observed points per m^2 of box face (default: the paper's 4)")
     p.add_argument("--envs", type=positive, default=10,
                    help="spheres environments per goal kind, and each world's per link count (default 10)")
-    p.add_argument("--env0", type=int, default=0, help="first spheres or world environment (default 0)")
+    p.add_argument("--env0", type=non_negative, default=0, help="first spheres or world environment (default 0)")
     p.add_argument("--goals", default="fixed", type=lambda t: parse_list(t, str, "goal", ("fixed", "random")),
                    help="spheres goal kinds (default fixed)")
     p.add_argument("--max-steps", type=positive, help="override every scenario's step budget")

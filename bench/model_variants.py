@@ -20,6 +20,8 @@ from ncedf.robot import RobotSpec
 from ncedf.train import TrainConfig, train
 from recorder.cli import OneLineParser, exit_with, stoppable
 
+from arguments import positive
+
 # name -> (model settings, train settings, extra near-surface points)
 VARIANTS = {
     "paper encoding, distance output": (dict(encoding="paper", output="distance"), {}, 0),
@@ -34,9 +36,9 @@ COLUMNS = ("mae", "rmse", "moe", "over_p999", "near_mae", "near_moe", "surface_m
 
 def main() -> None:
     p = OneLineParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--epochs", type=int, default=4)
-    p.add_argument("--layers", type=int, default=4)
-    p.add_argument("--width", type=int, default=16)
+    p.add_argument("--epochs", type=positive, default=4)
+    p.add_argument("--layers", type=positive, default=4)
+    p.add_argument("--width", type=positive, default=16)
     p.add_argument("--only", nargs="*", help="substrings of variant names to run")
     args = p.parse_args()
     spec = RobotSpec(1)

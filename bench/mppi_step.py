@@ -51,6 +51,8 @@ from recorder.cli import OneLineParser, exit_with, stoppable
 from scenarios import cluttered
 from scenarios.observe import make_observer
 
+from arguments import positive
+
 
 def cluttered_points(n: int, seed: int = 0) -> np.ndarray:
     """About ``n`` observed points of ``scenarios.cluttered``'s world at t = 0: 30 on each
@@ -207,28 +209,28 @@ DEFAULT_REPS = "ncedf,spheres,exact,pointcloud:1000"
 
 def main(argv=None):
     p = OneLineParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--links", type=int, nargs="+", default=[4, 5, 7])
-    p.add_argument("--samples", type=int, default=800)
-    p.add_argument("--horizon", type=int, default=20)
-    p.add_argument("--horizon-long", type=int, default=7, help="horizon for > 6 links (release)")
+    p.add_argument("--links", type=positive, nargs="+", default=[4, 5, 7])
+    p.add_argument("--samples", type=positive, default=800)
+    p.add_argument("--horizon", type=positive, default=20)
+    p.add_argument("--horizon-long", type=positive, default=7, help="horizon for > 6 links (release)")
     p.add_argument("--same-horizon", action="store_true")
-    p.add_argument("--points", type=int, default=500)
-    p.add_argument("--steps", type=int, default=20, help="timed broad-phase steps after compilation")
-    p.add_argument("--ref-steps", type=int, default=2, help="timed brute-force steps (same inputs), >= 2")
+    p.add_argument("--points", type=positive, default=500)
+    p.add_argument("--steps", type=positive, default=20, help="timed broad-phase steps after compilation")
+    p.add_argument("--ref-steps", type=positive, default=2, help="timed brute-force steps (same inputs), >= 2")
     p.add_argument("--reps", default=DEFAULT_REPS,
                    help="comma-separated representations (default " + DEFAULT_REPS.replace(",", ", ") + ")")
-    p.add_argument("--k1", type=int, default=BroadPhase.k1)
-    p.add_argument("--k2", type=int, default=BroadPhase.k2)
-    p.add_argument("--segments", type=int, default=BroadPhase.capsule_segments, help="capsules per link")
+    p.add_argument("--k1", type=positive, default=BroadPhase.k1)
+    p.add_argument("--k2", type=positive, default=BroadPhase.k2)
+    p.add_argument("--segments", type=positive, default=BroadPhase.capsule_segments, help="capsules per link")
     p.add_argument("--model", default=None, help="N-CEDF weights (default: the shipped model)")
     p.add_argument("--random-model", action="store_true", help="untrained 4x16 network (timing only)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--quick", action="store_true", help="smoke run: 4 links, 64 samples, H 8, few steps")
     p.add_argument("--closed-loop", action="store_true", help="also run the closed-loop equivalence check")
     p.add_argument("--closed-loop-only", action="store_true", help="only the closed-loop check")
-    p.add_argument("--cl-samples", type=int, default=256)
-    p.add_argument("--cl-points", type=int, default=200)
-    p.add_argument("--cl-steps", type=int, default=60)
+    p.add_argument("--cl-samples", type=positive, default=256)
+    p.add_argument("--cl-points", type=positive, default=200)
+    p.add_argument("--cl-steps", type=positive, default=60)
     args = p.parse_args(argv)
     if args.quick:
         args.links, args.samples, args.horizon, args.steps, args.ref_steps = [4], 64, 8, 3, 2
@@ -239,6 +241,13 @@ def main(argv=None):
     args.ref_steps_for = lambda rep: (2 if rep.startswith("pointcloud:") and int(rep.split(":")[1]) > 2000
                                       else args.ref_steps)
     reps = [r.strip() for r in args.reps.split(",") if r.strip()]
+    if not reps:
+        p.error(f"--reps: no representation named in {args.reps!r}")
+    for rep in (r for r in reps if r != "ncedf"):  # the network is loaded below
+        try:
+            make_shape(rep, RobotSpec(4))
+        except ValueError as exc:
+            p.error(f"--reps: {exc}")
 
     model = None
     if "ncedf" in reps or args.closed_loop or args.closed_loop_only:
@@ -249,7 +258,10 @@ def main(argv=None):
             model = model_mod.NCEDF(model_mod.init_params(jax.random.PRNGKey(0), cfg), cfg, RobotSpec(1))
             print("NOTE: untrained random 4x16 network: timings only, agreement not meaningful")
         else:
-            model = model_mod.load_model(args.model)
+            try:
+                model = model_mod.load_model(args.model)
+            except model_mod.ModelError as exc:
+                p.error(f"--model: {exc}")
     if args.closed_loop_only:
         closed_loop(args, model)
         return

@@ -26,6 +26,8 @@ from ncedf.train import (TrainConfig, evaluate_model, initial_state, make_epoch,
                          training_arrays)
 from recorder.cli import OneLineParser, exit_with, stoppable
 
+from arguments import non_negative, positive
+
 
 def former_epoch(model_cfg: ModelConfig, cfg: TrainConfig, optimizer, n_samples: int):
     """The reference: the permutation drawn by XLA and each minibatch gathered inside the scan."""
@@ -65,11 +67,11 @@ def run(name, make, model_cfg, cfg, spec, x, y, val):
 
 def main() -> None:
     p = OneLineParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--layers", type=int, default=4)
-    p.add_argument("--width", type=int, default=16)
+    p.add_argument("--layers", type=positive, default=4)
+    p.add_argument("--width", type=positive, default=16)
     p.add_argument("--encoding", choices=ENCODINGS, default="bending-plane")
-    p.add_argument("--epochs", type=int, default=3, help="epochs each (at least 2: the first compiles)")
-    p.add_argument("--near", type=int, default=4096, help="near-surface points per configuration")
+    p.add_argument("--epochs", type=positive, default=3, help="epochs each (at least 2: the first compiles)")
+    p.add_argument("--near", type=non_negative, default=4096, help="near-surface points per configuration")
     args = p.parse_args()
     if args.epochs < 2:
         p.error(f"--epochs must be at least 2 (the first compiles), got {args.epochs}")
