@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import math
+from pathlib import Path
 
 
 def parse_list(text: str, cast, name: str, allowed=None, above_zero: bool = False) -> list:
@@ -48,4 +49,35 @@ def non_negative(text: str) -> int:
         raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
     if value < 0:
         raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
+    return value
+
+
+def output_file(text: str) -> Path:
+    """A file to write at the end: not a folder, in a folder that exists (checked before the work)."""
+    path = Path(text)
+    if not text.strip() or path.is_dir() or not path.parent.is_dir():
+        raise argparse.ArgumentTypeError(f"cannot write {text!r} (a folder, or in a folder that does not exist)")
+    return path
+
+
+def runs_folder(text: str) -> Path:
+    """An existing folder that holds recordings."""
+    from recorder.read import find_recordings
+
+    path = Path(text)
+    if not text.strip() or not path.is_dir():
+        raise argparse.ArgumentTypeError(f"no such folder: {text!r}")
+    if not find_recordings(path):
+        raise argparse.ArgumentTypeError(f"no recordings in {text!r}")
+    return path
+
+
+def positive_float(text: str) -> float:
+    """A finite number > 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not 0 < value < math.inf:
+        raise argparse.ArgumentTypeError(f"must be finite and > 0, got {value}")
     return value

@@ -57,7 +57,7 @@ from recorder.cli import EXIT_STATUS, OneLineParser, Stopped, exit_with, stop_on
 from scenarios import WORLDS
 from scenarios.episode import Episode, EpisodeSettings, build_scene, option_positive
 
-from arguments import non_negative, parse_list, positive
+from arguments import non_negative, output_file, parse_list, positive
 from solver_time import solver_times
 
 #: name -> (preset, changes: "stage.field" or "stage" -> value). ``paper`` also takes ``ours``'s sizes.
@@ -281,7 +281,7 @@ def main(argv=None) -> int:
                    help="smoke run: 1 seed, 2 environments, ours and paper, 60 steps")
     p.add_argument("--timing", type=positive, metavar="STEPS",
                    help="instead of episodes: solver ms of each variant and its ratio to paper, STEPS steps per group")
-    p.add_argument("--json", type=Path, help="also write every episode's result here")
+    p.add_argument("--json", type=output_file, help="also write every episode's result here")
     args = p.parse_args(argv)
     if args.quick:
         args.links, args.seeds, args.envs = [4, 5, 7], QUICK["seeds"], QUICK["envs"]

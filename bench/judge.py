@@ -29,7 +29,7 @@ import jax
 import numpy as np
 import trimesh
 
-from arguments import parse_list, positive
+from arguments import non_negative, parse_list, positive
 from ncedf.robot import RobotSpec, forward_kinematics, sample_arc_lengths
 from recorder.cli import OneLineParser, exit_with
 from rows import print_rows
@@ -183,9 +183,12 @@ def main(argv=None) -> int:
     p.add_argument("--old-steps", type=positive, default=3, help="steps judged by the old judge (default 3)")
     p.add_argument("--old-limit", type=positive, default=2000, help="largest mesh the old judge is run on")
     p.add_argument("--old", default=OLD, help=f"git revision of the old judge (default {OLD}; 'none' skips it)")
-    p.add_argument("--seed", type=int, default=0, help="random walk seed (default 0)")
+    p.add_argument("--seed", type=non_negative, default=0, help="random walk seed (default 0)")
     p.add_argument("--repeats", type=positive, default=3, help="timed passes, the best kept (default 3)")
     args = p.parse_args(argv)
+    if args.old != "none" and subprocess.run(["git", "rev-parse", "--verify", "--quiet", f"{args.old}^{{commit}}"],
+                                             capture_output=True).returncode != 0:
+        p.error(f"--old: not a git revision here: {args.old!r} (or 'none')")
     old = None if args.old == "none" else old_judge(args.old)
     status = print_rows(mesh_rows(args, old), lambda line: [line])
     return status or print_rows(paper_rows(args, old), lambda line: [line])

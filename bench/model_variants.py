@@ -39,15 +39,19 @@ def main() -> None:
     p.add_argument("--epochs", type=positive, default=4)
     p.add_argument("--layers", type=positive, default=4)
     p.add_argument("--width", type=positive, default=16)
-    p.add_argument("--only", nargs="*", help="substrings of variant names to run")
+    p.add_argument("--only", nargs="+", metavar="TEXT", help="substrings of the names of the variants to run")
     args = p.parse_args()
-    spec = RobotSpec(1)
-    val = load_dataset(ValidationConfig(), spec)
-    print(f"{args.layers} x {args.width}, {args.epochs} epochs each, validation 100 x 4096 exact labels")
+    chosen = [name for name in VARIANTS if not args.only or any(s and s in name for s in args.only)]
+    if not chosen:
+        p.error(f"--only: no variant's name holds {' or '.join(map(repr, args.only))}; "
+                f"the variants: {', '.join(VARIANTS)}")
+    spec, checked = RobotSpec(1), ValidationConfig()
+    val = load_dataset(checked, spec)
+    print(f"{args.layers} x {args.width}, {args.epochs} epochs each, validation {checked.n_configs} x "
+          f"{checked.n_points} exact labels")
     print(f"{'variant':42s} " + " ".join(f"{c:>12s}" for c in COLUMNS) + "   train s")
-    for name, (model_kw, train_kw, near) in VARIANTS.items():
-        if args.only and not any(s in name for s in args.only):
-            continue
+    for name in chosen:
+        model_kw, train_kw, near = VARIANTS[name]
         data = load_dataset(DatasetConfig(n_near=near), spec)
         start = time.perf_counter()
         _, history = train(ModelConfig(args.layers, args.width, **model_kw),

@@ -35,7 +35,6 @@ import dataclasses
 import json
 import platform
 import sys
-from pathlib import Path
 
 import jax
 import numpy as np
@@ -44,7 +43,7 @@ from analysis import paper
 from recorder.cli import EXIT_STATUS, OneLineParser, Stopped, exit_with, stop_on_signals
 from scenarios.episode import Episode, EpisodeSettings
 
-from arguments import parse_list, positive
+from arguments import output_file, parse_list, positive
 from solver_time import solver_times
 
 #: Table III's representations, in the paper's order.
@@ -123,7 +122,7 @@ def main(argv=None) -> int:
     p.add_argument("--links", default="4,5,7", type=lambda t: parse_list(t, int, "links", tuple(paper.TABLE4)),
                    help="Table IV link counts (default 4,5,7)")
     p.add_argument("--steps", type=positive, default=30, help="timed steps per controller (default 30)")
-    p.add_argument("--json", type=Path, help="also write the rows here")
+    p.add_argument("--json", type=output_file, help="also write the rows here")
     args = p.parse_args(argv)
 
     print(f"device: {device_line()}", flush=True)

@@ -41,7 +41,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from arguments import positive  # noqa: E402
+from arguments import positive, positive_float, runs_folder  # noqa: E402
 from ncedf.robot import RobotSpec  # noqa: E402
 from recorder.cli import OneLineParser, exit_with, stoppable  # noqa: E402
 from scenarios.episode import goal_text  # noqa: E402
@@ -55,12 +55,10 @@ def main(argv=None) -> int:
     p.add_argument("--envs", type=positive, default=200, help="environments 0..N-1 (default 200)")
     p.add_argument("--goal", type=goal_text, default="fixed", metavar="GOAL",
                    help="fixed, random or X,Y,Z in m (default fixed)")
-    p.add_argument("--dt", type=float, default=BASE_DT, help=f"time sampling, s (default {BASE_DT})")
-    p.add_argument("--runs", help="folder of sphere recordings to compare with")
+    p.add_argument("--dt", type=positive_float, default=BASE_DT, help=f"time sampling, s (default {BASE_DT})")
+    p.add_argument("--runs", type=runs_folder, help="folder of sphere recordings to compare with")
     p.add_argument("--starts", type=positive, default=64, help="starts of each closest-approach search (default 64)")
     args = p.parse_args(argv)
-    if args.dt <= 0:
-        p.error(f"--dt must be > 0, got {args.dt}")
     spec = RobotSpec(LINKS)
     hits, goals = {}, {}
     for env in range(args.envs):

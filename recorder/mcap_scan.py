@@ -1,10 +1,11 @@
 """A minimal, fast MCAP record scanner for reading recordings back.
 
 The `mcap` package parses every record field by field in Python; reading thousands of runs
-needs only channels, metadata and the messages of a few topics. This scanner walks the records with `struct.unpack_from` over one buffer,
-opens chunks (zstd, lz4 or uncompressed), and stops quietly at a truncated tail, so it also
-reads files whose writer was killed. `indexed_metadata` reads only the footer and the summary
-section of a closed file, and the metadata records it indexes. Record layouts: https://mcap.dev/spec.
+needs only channels, metadata and the messages of a few topics. This scanner walks the records
+with `struct.unpack_from` over one buffer, opens chunks (zstd, lz4 or uncompressed), and stops
+quietly at a truncated tail, so it also reads files whose writer was killed. `indexed_metadata`
+reads only the footer and the summary section of a closed file, and the metadata records it
+indexes. Record layouts: https://mcap.dev/spec.
 """
 
 from __future__ import annotations
