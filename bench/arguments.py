@@ -30,26 +30,25 @@ def link_counts(text: str) -> list[int]:
     return parse_list(text, int, "link count", (4, 5, 7))
 
 
-def positive(text: str) -> int:
-    """An integer >= 1."""
+def _integer(text: str, low: int) -> int:
+    """An integer >= ``low``."""
     try:
         value = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
+    if value < low:
+        raise argparse.ArgumentTypeError(f"must be >= {low}, got {value}")
     return value
+
+
+def positive(text: str) -> int:
+    """An integer >= 1."""
+    return _integer(text, 1)
 
 
 def non_negative(text: str) -> int:
     """An integer >= 0."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
-    return value
+    return _integer(text, 0)
 
 
 def output_file(text: str) -> Path:
