@@ -271,7 +271,8 @@ def parse_args(argv=None) -> argparse.Namespace:
 
     p = OneLineParser(prog="python -m ncedf.train", description=__doc__.split("\n\n")[0])
     model, train, data, val, robot = ModelConfig(), TrainConfig(), DatasetConfig(), ValidationConfig(), RobotSpec(1)
-    p.add_argument("--layers", type=int, default=model.layers, help=f"Dense layers incl. output (default {model.layers})")
+    p.add_argument("--layers", type=int, default=model.layers,
+                   help=f"Dense layers incl. output (default {model.layers})")
     p.add_argument("--width", type=int, default=model.width, help=f"hidden width (default {model.width})")
     p.add_argument("--encoding", choices=ENCODINGS, default=model.encoding)
     p.add_argument("--output", choices=OUTPUTS, default=model.output, metavar="KIND",
@@ -283,7 +284,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--schedule", choices=SCHEDULES, default=train.schedule)
     p.add_argument("--lambda-eikonal", type=float, default=train.lambda_eikonal)
     p.add_argument("--lambda-over", type=float, default=train.lambda_over)
-    p.add_argument("--near-weight", type=float, default=train.near_weight, help="loss weight of near-field samples (beyond the paper)")
+    p.add_argument("--near-weight", type=float, default=train.near_weight,
+                   help="loss weight of near-field samples (beyond the paper)")
     p.add_argument("--no-overestimation", action="store_true", help="drop the over-estimation loss (paper Table II)")
     p.add_argument("--labels", choices=("exact", "surface-samples"), default=data.labels)
     p.add_argument("--configs", type=int, default=data.n_configs, help="training configurations N")
@@ -302,7 +304,8 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help=f"longest chamber arc length, m (default {robot.l_max:g})")
     p.add_argument("--seed", type=int, default=train.seed)
     p.add_argument("--out", type=path_text, required=True, help="output stem: writes OUT.msgpack and OUT.json")
-    p.add_argument("--record", type=path_text, metavar="STEM", help="also record the run (per-epoch /metrics) to STEM.rrd and STEM.mcap")
+    p.add_argument("--record", type=path_text, metavar="STEM",
+                   help="also record the run (per-epoch /metrics) to STEM.rrd and STEM.mcap")
     p.add_argument("--overwrite", action="store_true", help="overwrite existing weights and recording")
     add_cache_option(p)
     return p.parse_args(argv)

@@ -161,7 +161,8 @@ def main(argv: list[str] | None = None) -> int:
         if getattr(args, name) < 1:
             parser.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
     if not (0 < args.dt < math.inf and 0 <= args.step_delay < math.inf):
-        parser.error(f"--dt must be finite and > 0, and --step-delay finite and >= 0, got {args.dt} and {args.step_delay}")
+        parser.error(f"--dt must be finite and > 0, and --step-delay finite and >= 0, "
+                     f"got {args.dt} and {args.step_delay}")
     if isinstance(args.viewer, str):
         try:
             check_url(args.viewer)

@@ -47,8 +47,9 @@ def make_parser(scenario: str, description: str, *, links: int = 4, max_steps: i
     p.add_argument("--shape", default="ncedf",
                    help="robot-shape representation of the controller: ncedf, spheres, pointcloud:P, exact "
                         "(default ncedf)")
-    p.add_argument("--model", metavar="PATH", type=path_text, help="N-CEDF weights: the robot's links and, for --shape ncedf, its "
-                                                   "network (default: the shipped model)")
+    p.add_argument("--model", metavar="PATH", type=path_text,
+                   help="N-CEDF weights: the robot's links and, for --shape ncedf, its network (default: the "
+                        "shipped model)")
     p.add_argument("--scale", metavar="S", help="scale the scene (obstacles, speeds, goal) by S about the base; "
                                                 "--goal is unscaled (default 1)")
     p.add_argument("--controller", choices=tuple(PRESETS), default=DEFAULT,
@@ -56,8 +57,8 @@ def make_parser(scenario: str, description: str, *, links: int = 4, max_steps: i
     p.add_argument("--samples", type=int, help="MPPI rollouts (default: the controller's)")
     p.add_argument("--horizon", type=int, help="MPPI horizon in steps (default: the controller's)")
     p.add_argument("--max-steps", type=int, help=f"step budget (default {max_steps})")
-    p.add_argument("--out", default="recording", type=path_text, help="recording path without suffix (default: recording -> "
-                                                      "recording.rrd, recording.mcap)")
+    p.add_argument("--out", default="recording", type=path_text,
+                   help="recording path without suffix (default: recording -> recording.rrd, recording.mcap)")
     p.add_argument("--formats", default=",".join(FORMATS), help="comma-separated subset of rrd,mcap (default rrd,mcap)")
     p.add_argument("--mesh-every", type=int, default=1, help="record the robot mesh every N steps (default 1)")
     p.add_argument("--overwrite", action="store_true", help="replace existing recordings")

@@ -429,7 +429,8 @@ def parse_args(argv=None):
                              "(run the same command again to finish).")
     p.add_argument("table", choices=(*TABLES, "all"), help="which experiment")
     p.add_argument("--out", type=path_text, default="runs", help="folder of the recordings (default runs/)")
-    p.add_argument("--quick", action="store_true", help="a smoke-sized version of every experiment (a fraction of the time)")
+    p.add_argument("--quick", action="store_true",
+                   help="a smoke-sized version of every experiment (a fraction of the time)")
     p.add_argument("--epochs", type=int, help=f"training epochs per network (default {PAPER_EPOCHS}, quick 1)")
     p.add_argument("--envs", type=int, help=f"Table III environments per representation (default {EpisodeBudget.envs})")
     p.add_argument("--envs-5000", type=int, metavar="N",

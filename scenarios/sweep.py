@@ -704,7 +704,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     ep.add_argument("--max-steps", type=int, help="step budget (default: the scenario's)")
     ep.add_argument("--goal", metavar="GOAL", help=f"{', '.join(GOALS)} or X,Y,Z in m (spheres and cluttered; "
                                                    f"default {EpisodeSettings.goal})")
-    ep.add_argument("--model", type=path_text, help="N-CEDF weights: the robot's links and its network (default: the shipped model)")
+    ep.add_argument("--model", type=path_text,
+                    help="N-CEDF weights: the robot's links and its network (default: the shipped model)")
     ep.add_argument("--option", type=_option, action="append", default=[], metavar="KEY=VALUE",
                     help="scenario option, repeatable (e.g. custom: obstacles=FILE, an absolute path for Ray)")
     run = p.add_argument_group("running")

@@ -389,7 +389,8 @@ def _annular_sector_distance(uz: np.ndarray, theta: float, length: float, r: flo
     angles = np.pi - np.linspace(0.0, theta, 40_001)
     arcs = [np.stack([big + rho * np.cos(angles), rho * np.sin(angles)], -1) for rho in (big - r, big + r)]
     across = np.linspace(-r, r, 4001)[:, None]
-    ends = [np.array([big, 0.0]) + (big + across) * np.array([math.cos(a), math.sin(a)]) for a in (np.pi, np.pi - theta)]
+    ends = [np.array([big, 0.0]) + (big + across) * np.array([math.cos(a), math.sin(a)])
+            for a in (np.pi, np.pi - theta)]
     return cKDTree(np.concatenate(arcs + ends)).query(uz)[0]
 
 
