@@ -22,6 +22,8 @@ from recorder import Recorder, load_runs
 from recorder.cli import OneLineParser, exit_with, stoppable
 from recorder.synthetic import SyntheticRun
 
+from arguments import non_negative, positive
+
 BUDGET_MS = 3.0
 CONFIGS = {"rrd": ("rrd",), "mcap": ("mcap",), "both": ("rrd", "mcap")}
 
@@ -102,22 +104,15 @@ def bench_load_runs(args, folder: Path) -> None:
 
 def main() -> None:
     parser = OneLineParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--links", type=int, default=7)
-    parser.add_argument("--steps", type=int, default=300)
-    parser.add_argument("--mcap-mesh-every", type=int, nargs="+", default=[1, 2, 5])
-    parser.add_argument("--flush-every", type=int, default=50)
-    parser.add_argument("--repeat", type=int, default=3, help="runs per configuration; the best is kept")
-    parser.add_argument("--load-runs", type=int, default=0, help="also time load_runs over this many runs")
-    parser.add_argument("--load-steps", type=int, default=20)
+    parser.add_argument("--links", type=positive, default=7)
+    parser.add_argument("--steps", type=positive, default=300)
+    parser.add_argument("--mcap-mesh-every", type=positive, nargs="+", default=[1, 2, 5])
+    parser.add_argument("--flush-every", type=positive, default=50)
+    parser.add_argument("--repeat", type=positive, default=3, help="runs per configuration; the best is kept")
+    parser.add_argument("--load-runs", type=non_negative, default=0, help="also time load_runs over this many runs")
+    parser.add_argument("--load-steps", type=positive, default=20)
     parser.add_argument("--skip-logging", action="store_true", help="only the load_runs benchmark")
     args = parser.parse_args()
-    counts = {"links": args.links, "steps": args.steps, "mcap-mesh-every": min(args.mcap_mesh_every),
-              "flush-every": args.flush_every, "repeat": args.repeat, "load-steps": args.load_steps}
-    for name, value in counts.items():
-        if value < 1:
-            parser.error(f"--{name} must be >= 1, got {value}")
-    if args.load_runs < 0:
-        parser.error(f"--load-runs must be >= 0, got {args.load_runs}")
     with tempfile.TemporaryDirectory() as tmp:
         if not args.skip_logging:
             bench_logging(args, Path(tmp))

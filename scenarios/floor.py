@@ -226,10 +226,9 @@ def run_floor(folder: Path, starts: int = OracleConfig.starts) -> int:
                     tqdm.write(describe(links, goal_kind, env, verdict), file=sys.stdout)
                 done += 1
     except (Stopped, RecordingInterrupted) as stop:
-        signum = stop.signum
         print(f"interrupted: {done} of {len(todo)} verdicts recorded in {out}; the same command finishes "
               "the rest", file=sys.stderr)
-        return EXIT_STATUS[signum]
+        return EXIT_STATUS[stop.signum]
     print(f"floor: {done} verdicts in {out} ({time.perf_counter() - start:.0f} s)", file=sys.stderr)
     return 0
 
