@@ -158,10 +158,14 @@ def record_verdict(stem: Path, goal_kind: str, env: int, world: World, goal: np.
 def open_environments(folder: Path) -> tuple[list[tuple[int, str, int]], int]:
     """(links, goal kind, environment seed) of the sphere episodes under ``folder`` of the paper's links
     (:func:`analysis.load.sphere_episodes`) where none reached the goal, sorted; and the number of
-    sphere episodes of other robots (links of another size, a scaled scene), which it does not judge."""
+    sphere episodes of other robots (links of another size, a scaled scene), which it does not judge.
+    Raises ValueError where ``folder`` holds no sphere episode at all."""
     from analysis.load import load, sphere_episodes
 
     recordings = load(folder)
+    if recordings.scenario("spheres").empty:
+        raise ValueError(f"no dynamic-sphere episodes in {folder} (python -m scenarios.spheres or a sweep of them "
+                         "records them)")
     runs = sphere_episodes(recordings)
     others = len(recordings.scenario("spheres")) - len(runs)
     if runs.empty:
@@ -185,7 +189,7 @@ def describe(links: int, goal_kind: str, env: int, verdict: Verdict) -> str:
 
 def parse_args(argv=None):
     p = OneLineParser(prog="python -m scenarios.floor", description=__doc__.split("\n\n")[0],
-                      epilog="Exit status: 0 done, 2 bad arguments, 130/143 interrupted (run it again to finish).")
+                      epilog="Exit status: 0 done, 2 bad arguments or no sphere episodes, 130/143 interrupted (run it again to finish).")
     p.add_argument("runs", type=path_text, help="folder of sphere recordings (a sweep's or the reproduction's)")
     p.add_argument("--starts", type=int, default=OracleConfig.starts,
                    help=f"random starts of each oracle search (default {OracleConfig.starts})")
@@ -199,12 +203,16 @@ def parse_args(argv=None):
 
 def run_floor(folder: Path, starts: int = OracleConfig.starts) -> int:
     """Record the verdicts of ``folder``'s open environments in ``folder/floor`` (resumes); the exit
-    status: 0 done, 130 / 143 stopped by SIGINT / SIGTERM (one line says what was kept)."""
+    status: 0 done, 2 no sphere episodes there, 130 / 143 stopped by SIGINT / SIGTERM (one line says what was kept)."""
     from tqdm import tqdm
 
     from scenarios.sweep import read_complete
 
-    todo, others = open_environments(folder)
+    try:
+        todo, others = open_environments(folder)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     out, config, reaches = folder / SCENARIO, OracleConfig(starts=starts), {}
     start, done = time.perf_counter(), 0
     print(f"floor: {len(todo)} environments of {folder} where no recorded episode reached the goal", file=sys.stderr)

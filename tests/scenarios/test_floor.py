@@ -77,3 +77,17 @@ def test_open_environments_are_per_link_count_and_a_scaled_robots_episodes_are_c
             rec.finish({"outcome": outcome, "steps": 1})
     assert floor.open_environments(tmp_path) == ([(4, "fixed", 0), (5, "fixed", 1)], 1)
     assert floor.verdict_stem(tmp_path, "fixed", 1, 5).name == "floor_fixed_env1_L5"
+
+
+def test_a_folder_without_sphere_episodes_is_refused_in_one_line(tmp_path, capsys):
+    """A folder of other episodes (or none) is a user's mistake, not 'zero open environments': exit 2,
+    one line naming the folder, nothing written."""
+    from recorder import Recorder
+
+    with Recorder(tmp_path / "cluttered", {"scenario": "cluttered", "links": 4}, formats=("mcap",)) as rec:
+        rec.log_step(0, 0.0, metrics={"solver_ms": 1.0})
+        rec.finish({"outcome": "stuck", "steps": 1})
+    assert floor.main([str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(tmp_path) in err[0] and "no dynamic-sphere episodes" in err[0]
+    assert not (tmp_path / floor.SCENARIO).exists()
