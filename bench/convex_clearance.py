@@ -78,7 +78,7 @@ def compare(links: int, args) -> dict:
 
 def main(argv=None) -> int:
     p = OneLineParser(description=__doc__.split("\n\n")[0], epilog=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+                      formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--links", type=link_counts, default=[4, 5, 7],
                    help="link counts (comma-separated; default 4,5,7)")
     p.add_argument("--repeats", type=positive, default=10, help="timed calls per form (default 10)")
