@@ -157,7 +157,7 @@ def true_distances_certified(world: World, spec: RobotSpec, arcs, times, exact_d
     for j, part in enumerate(columns):
         middle = [m[j][:, None] for m in meshes]
         out.append(np.concatenate([part[:, :cut], *middle, part[:, cut:]], axis=1))
-    return out[0], out[1]
+    return out[0] + 0.0, out[1]  # + 0.0: a contact's -0.0 (its point taken as inside) reads as 0, not "-0.0000"
 
 
 def true_distances_batch(world: World, spec: RobotSpec, arcs, times, exact_depth: bool = False) -> np.ndarray:

@@ -231,3 +231,16 @@ def test_a_robot_standing_on_a_plate_its_base_disk_bounded_once_for_every_state(
         low, high = brute_force(plate, arc)
         assert low - 1e-5 <= value and value - certificate <= high + 1e-5, (low, value, certificate, high)
         assert (certificate <= CERTIFIED + 1e-6 or value < -CERTIFIED) and value <= gap + CERTIFIED
+
+
+def test_a_base_disk_resting_on_a_closed_mesh_is_a_contact_of_positive_zero():
+    """The base disk flush on a closed box's top: distance 0, no collision, and +0.0 (a signed zero
+    from the inside test printed as "-0.0000 m" in the runner's summary)."""
+    import math
+
+    slab = trimesh.creation.box(extents=(0.3, 0.3, 0.1)).apply_translation((0.0, 0.0, -0.05))
+    assert slab.is_watertight
+    straight = np.asarray(SPEC.straight_state(), np.float64)
+    step = judge_step(World(meshes=(MeshObstacle(slab.vertices, slab.faces),)), SPEC, straight, straight, 0.0, 0.05)
+    assert step.min_distance == 0.0 and math.copysign(1.0, step.min_distance) == 1.0
+    assert step.first_collision_time is None
