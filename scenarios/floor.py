@@ -189,7 +189,8 @@ def describe(links: int, goal_kind: str, env: int, verdict: Verdict) -> str:
 
 def parse_args(argv=None):
     p = OneLineParser(prog="python -m scenarios.floor", description=__doc__.split("\n\n")[0],
-                      epilog="Exit status: 0 done, 2 bad arguments or no sphere episodes, 130/143 interrupted (run it again to finish).")
+                      epilog="Exit status: 0 done, 2 bad arguments or no sphere episodes, 130/143 interrupted (run it "
+                             "again to finish).")
     p.add_argument("runs", type=path_text, help="folder of sphere recordings (a sweep's or the reproduction's)")
     p.add_argument("--starts", type=int, default=OracleConfig.starts,
                    help=f"random starts of each oracle search (default {OracleConfig.starts})")

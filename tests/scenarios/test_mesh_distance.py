@@ -8,6 +8,8 @@ The robot is a small two-link one (L = 0.2 m, r = 2 cm), so that 1 mm is a real 
 
 from __future__ import annotations
 
+import math
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -236,8 +238,6 @@ def test_a_robot_standing_on_a_plate_its_base_disk_bounded_once_for_every_state(
 def test_a_base_disk_resting_on_a_closed_mesh_is_a_contact_of_positive_zero():
     """The base disk flush on a closed box's top: distance 0, no collision, and +0.0 (a signed zero
     from the inside test printed as "-0.0000 m" in the runner's summary)."""
-    import math
-
     slab = trimesh.creation.box(extents=(0.3, 0.3, 0.1)).apply_translation((0.0, 0.0, -0.05))
     assert slab.is_watertight
     straight = np.asarray(SPEC.straight_state(), np.float64)
