@@ -1,4 +1,5 @@
-"""Command-line argument types the benches share, imported from their folder. They raise
+"""Command-line argument types the benches share, imported from their folder (the counts' types,
+``positive`` and ``non_negative``, are the commands' own from ``recorder.cli``). They raise
 ``argparse.ArgumentTypeError``, which the parser reports in one line naming the option."""
 
 from __future__ import annotations
@@ -6,6 +7,10 @@ from __future__ import annotations
 import argparse
 import math
 from pathlib import Path
+
+from recorder.cli import non_negative, positive
+
+__all__ = ["link_counts", "non_negative", "output_file", "parse_list", "positive", "positive_float", "runs_folder"]
 
 
 def parse_list(text: str, cast, name: str, allowed=None, above_zero: bool = False) -> list:
@@ -28,27 +33,6 @@ def parse_list(text: str, cast, name: str, allowed=None, above_zero: bool = Fals
 def link_counts(text: str) -> list[int]:
     """The link counts of the paper's cluttered scene in ``text`` (a subset of 4, 5, 7)."""
     return parse_list(text, int, "link count", (4, 5, 7))
-
-
-def _integer(text: str, low: int) -> int:
-    """An integer >= ``low``."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if value < low:
-        raise argparse.ArgumentTypeError(f"must be >= {low}, got {value}")
-    return value
-
-
-def positive(text: str) -> int:
-    """An integer >= 1."""
-    return _integer(text, 1)
-
-
-def non_negative(text: str) -> int:
-    """An integer >= 0."""
-    return _integer(text, 0)
 
 
 def output_file(text: str) -> Path:

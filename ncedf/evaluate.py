@@ -80,13 +80,14 @@ def report_link(model, val_cfg: ValidationConfig, args) -> None:
 
 
 def main(argv=None) -> int:
-    from recorder.cli import OneLineParser, path_text
+    from recorder.cli import OneLineParser, path_text, positive
+
     p = OneLineParser(prog="python -m ncedf.evaluate", description=__doc__.split("\n\n")[0])
     val = ValidationConfig()
     p.add_argument("--model", default=None, type=path_text, help="weights file or stem (default: the shipped model)")
-    p.add_argument("--configs", type=int, default=val.n_configs,
+    p.add_argument("--configs", type=positive, default=val.n_configs,
                    help=f"validation configurations (default {val.n_configs})")
-    p.add_argument("--points", type=int, default=val.n_points,
+    p.add_argument("--points", type=positive, default=val.n_points,
                    help=f"random points per configuration (default {val.n_points})")
     p.add_argument("--seed", type=int, default=val.seed, help="validation seed")
     add_cache_option(p)

@@ -89,7 +89,8 @@ def training_arrays(data: LinkDataset, model_cfg: ModelConfig) -> tuple[jnp.ndar
     encoding, dim = model_cfg.encoding, model_cfg.input_dim
     enc = jax.vmap(encode, in_axes=(0, 0, 0, None))
     x = [enc(jnp.asarray(data.points), data.theta, data.phi, encoding).reshape(-1, dim)]
-    target = np.where(data.inside, -data.distances, data.distances) if model_cfg.output == "signed-abs" else data.distances
+    signed = model_cfg.output == "signed-abs"
+    target = np.where(data.inside, -data.distances, data.distances) if signed else data.distances
     y = [jnp.asarray(target).reshape(-1)]
     if data.surface.shape[1]:
         x.append(enc(jnp.asarray(data.surface), data.theta, data.phi, encoding).reshape(-1, dim))
@@ -267,19 +268,19 @@ def _output_problem(stem: Path, overwrite: bool) -> str | None:
 
 
 def parse_args(argv=None) -> argparse.Namespace:
-    from recorder.cli import OneLineParser, path_text
+    from recorder.cli import OneLineParser, non_negative, path_text, positive
 
     p = OneLineParser(prog="python -m ncedf.train", description=__doc__.split("\n\n")[0])
     model, train, data, val, robot = ModelConfig(), TrainConfig(), DatasetConfig(), ValidationConfig(), RobotSpec(1)
-    p.add_argument("--layers", type=int, default=model.layers,
+    p.add_argument("--layers", type=positive, default=model.layers,
                    help=f"Dense layers incl. output (default {model.layers})")
-    p.add_argument("--width", type=int, default=model.width, help=f"hidden width (default {model.width})")
+    p.add_argument("--width", type=positive, default=model.width, help=f"hidden width (default {model.width})")
     p.add_argument("--encoding", choices=ENCODINGS, default=model.encoding)
     p.add_argument("--output", choices=OUTPUTS, default=model.output, metavar="KIND",
                    help="distance (the network is the distance: the paper's) or signed-abs (|its signed distance|, "
                         "default)")
-    p.add_argument("--epochs", type=int, default=train.epochs)
-    p.add_argument("--batch-size", type=int, default=train.batch_size)
+    p.add_argument("--epochs", type=positive, default=train.epochs)
+    p.add_argument("--batch-size", type=positive, default=train.batch_size)
     p.add_argument("--lr", type=float, default=train.learning_rate, help="peak learning rate")
     p.add_argument("--schedule", choices=SCHEDULES, default=train.schedule)
     p.add_argument("--lambda-eikonal", type=float, default=train.lambda_eikonal)
@@ -288,12 +289,12 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="loss weight of near-field samples (beyond the paper)")
     p.add_argument("--no-overestimation", action="store_true", help="drop the over-estimation loss (paper Table II)")
     p.add_argument("--labels", choices=("exact", "surface-samples"), default=data.labels)
-    p.add_argument("--configs", type=int, default=data.n_configs, help="training configurations N")
-    p.add_argument("--grid", type=int, default=data.grid, help="workspace grid points per axis")
-    p.add_argument("--surface", type=int, default=data.n_surface, help="surface points per configuration")
-    p.add_argument("--near", type=int, default=data.n_near, help="extra near-surface points per configuration")
-    p.add_argument("--val-configs", type=int, default=val.n_configs)
-    p.add_argument("--val-points", type=int, default=val.n_points)
+    p.add_argument("--configs", type=positive, default=data.n_configs, help="training configurations N")
+    p.add_argument("--grid", type=positive, default=data.grid, help="workspace grid points per axis")
+    p.add_argument("--surface", type=non_negative, default=data.n_surface, help="surface points per configuration")
+    p.add_argument("--near", type=non_negative, default=data.n_near, help="extra near-surface points per configuration")
+    p.add_argument("--val-configs", type=positive, default=val.n_configs)
+    p.add_argument("--val-points", type=positive, default=val.n_points)
     p.add_argument("--length", type=float, default=robot.length,
                    help=f"link backbone length L, m (default {robot.length:g}, the paper's)")
     p.add_argument("--radius", type=float, nargs="+", default=[robot.radius], metavar="R",
@@ -433,7 +434,8 @@ def main(argv=None) -> int:
     }
     weights, meta = save_model(args.out, params, model_cfg, spec, extra, (val_cfg.box_min, val_cfg.box_max))
     print(f"trained in {train_seconds:.0f} s ({data_seconds:.0f} s data); wrote {weights} and {meta}")
-    print("  ".join(f"{k}={metrics[k]:.4f}" for k in ("mae", "rmse", "moe", "over_p999", "near_mae", "near_moe", "surface_mean")))
+    shown = ("mae", "rmse", "moe", "over_p999", "near_mae", "near_moe", "surface_mean")
+    print("  ".join(f"{k}={metrics[k]:.4f}" for k in shown))
     return 0
 
 

@@ -33,6 +33,27 @@ def path_text(text: str) -> str:
     return text
 
 
+def _integer(text: str, low: int) -> int:
+    """An integer >= ``low``."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if value < low:
+        raise argparse.ArgumentTypeError(f"must be >= {low}, got {value}")
+    return value
+
+
+def positive(text: str) -> int:
+    """An argparse type: an integer >= 1 (a count that must not be empty)."""
+    return _integer(text, 1)
+
+
+def non_negative(text: str) -> int:
+    """An argparse type: an integer >= 0."""
+    return _integer(text, 0)
+
+
 @contextlib.contextmanager
 def one_line_warnings(once=()):
     """Inside the block, warnings are shown as ``warning: message`` on stderr (not Python's source

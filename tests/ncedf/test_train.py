@@ -114,7 +114,20 @@ def test_short_training_run_reduces_validation_error():
 
 
 @pytest.mark.parametrize("option, value, message", [
-    ("--epochs", "0", "TrainConfig.epochs must be >= 1, got 0"),
+    ("--epochs", "0", "must be >= 1, got 0"),
+    ("--configs", "0", "must be >= 1, got 0"),
+    ("--near", "-1", "must be >= 0, got -1"),
+    ("--batch-size", "2.5", "not an integer: '2.5'"),
+])
+def test_cli_names_the_option_of_a_bad_count_in_one_line(capsys, tmp_path, option, value, message):
+    with pytest.raises(SystemExit) as stop:
+        main([option, value, "--out", str(tmp_path / "m")])
+    assert stop.value.code == 2
+    assert capsys.readouterr().err.strip() == f"python -m ncedf.train: error: argument {option}: {message}"
+    assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("option, value, message", [
     ("--lambda-eikonal", "nan", "TrainConfig.lambda_eikonal must be finite, got nan"),
     ("--lr", "inf", "TrainConfig.learning_rate must be finite, got inf"),
     ("--lambda-over", "-1", "TrainConfig.lambda_over must be >= 0, got -1.0"),
@@ -203,3 +216,12 @@ def test_cli_trains_a_tapered_robot_a_network_per_link(tmp_path):
         assert evaluate_model(link, val)["mae"] == pytest.approx(recorded["mae"], rel=1e-5)
     assert dict(model.metadata["metrics"])["mae"] == max(m["mae"] for m in per_link)
     assert len(model.metadata["history"]) == 2
+
+
+def test_evaluate_names_the_option_of_a_bad_count_in_one_line(capsys):
+    from ncedf.evaluate import main as evaluate
+
+    with pytest.raises(SystemExit) as stop:
+        evaluate(["--points", "0"])
+    assert stop.value.code == 2
+    assert capsys.readouterr().err.strip() == "python -m ncedf.evaluate: error: argument --points: must be >= 1, got 0"
