@@ -55,9 +55,9 @@ from ncedf.presets import PRESETS, Observation
 from ncedf.temperature import Fixed
 from recorder.cli import EXIT_STATUS, OneLineParser, Stopped, exit_with, stop_on_signals
 from scenarios import WORLDS
-from scenarios.episode import Episode, EpisodeSettings, build_scene, option_positive
+from scenarios.episode import Episode, EpisodeSettings, build_scene
 
-from arguments import non_negative, output_file, parse_list, positive
+from arguments import non_negative, output_file, parse_list, positive, positive_float
 from solver_time import solver_times
 
 #: name -> (preset, changes: "stage.field" or "stage" -> value). ``paper`` also takes ``ours``'s sizes.
@@ -239,17 +239,6 @@ def episodes_config_check(variant: str, settings: EpisodeSettings) -> None:
         raise ValueError(f"variant {variant!r} in the {settings.scenario} scene: {exc}") from None
 
 
-def positive_arg(name: str):
-    """An argparse type: a number > 0, its error naming the option ``name``."""
-    def parse(text: str) -> float:
-        try:
-            return option_positive(name, text)
-        except ValueError as exc:
-            raise argparse.ArgumentTypeError(str(exc)) from None
-
-    return parse
-
-
 def main(argv=None) -> int:
     listed = textwrap.fill(", ".join(VARIANTS), width=98, initial_indent="  ", subsequent_indent="  ")
     epilog = f"{__doc__}\nVARIANTS:\n{listed}\nworlds: {', '.join(WORLDS)}\n"
@@ -267,7 +256,7 @@ def main(argv=None) -> int:
     p.add_argument("--seeds", type=positive, default=3, help="cluttered controller seeds per link count (default 3)")
     p.add_argument("--seed0", type=non_negative, default=0,
                    help="first controller seed; the spheres' episodes use this one (default 0)")
-    p.add_argument("--density", type=positive_arg("density"),
+    p.add_argument("--density", type=positive_float,
                    help="cluttered: observed points per m^2 of box face (default: the paper's 4)")
     p.add_argument("--envs", type=positive, default=10,
                    help="spheres environments per goal kind, and each world's per link count (default 10)")
@@ -276,7 +265,7 @@ def main(argv=None) -> int:
                    help="spheres goal kinds (default fixed)")
     p.add_argument("--max-steps", type=positive, help="override every scenario's step budget")
     p.add_argument("--model", type=Path, help="N-CEDF weights: the robot and its network (default: the shipped)")
-    p.add_argument("--scale", type=positive_arg("scale"), help="scale every scene by S about the base (default 1)")
+    p.add_argument("--scale", type=positive_float, help="scale every scene by S about the base (default 1)")
     p.add_argument("--quick", action="store_true",
                    help="smoke run: 1 seed, 2 environments, ours and paper, 60 steps")
     p.add_argument("--timing", type=positive, metavar="STEPS",

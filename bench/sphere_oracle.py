@@ -29,7 +29,7 @@ from tqdm import tqdm
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from arguments import parse_list, runs_folder  # noqa: E402
+from arguments import non_negative, parse_list, positive, runs_folder  # noqa: E402
 from ncedf.mppi import MPPIConfig  # noqa: E402
 from ncedf.robot import RobotSpec  # noqa: E402
 from recorder.cli import EXIT_STATUS, OneLineParser, Stopped, exit_with, stop_on_signals  # noqa: E402
@@ -58,19 +58,17 @@ def recorded_collisions(folder: str, goal: str, envs: range) -> dict[int, list[s
 
 def main(argv=None) -> int:
     p = OneLineParser(prog="python bench/sphere_oracle.py", description=__doc__.split("\n\n")[0])
-    p.add_argument("--envs", type=int, default=200, help="environments env0 .. env0 + N - 1 (default 200)")
-    p.add_argument("--env0", type=int, default=0, help="first environment (default 0)")
+    p.add_argument("--envs", type=positive, default=200, help="environments env0 .. env0 + N - 1 (default 200)")
+    p.add_argument("--env0", type=non_negative, default=0, help="first environment (default 0)")
     p.add_argument("--goal", type=goal_text, default="fixed", metavar="GOAL",
                    help="fixed, random or X,Y,Z in m (default fixed)")
     p.add_argument("--horizons", default=tuple(HORIZONS),
                    type=lambda t: tuple(parse_list(t, int, "horizon", above_zero=True)),
                    help=f"horizons to try, steps (default {','.join(map(str, HORIZONS))})")
-    p.add_argument("--starts", type=int, default=OracleConfig.starts,
+    p.add_argument("--starts", type=positive, default=OracleConfig.starts,
                    help=f"random starts per horizon (default {OracleConfig.starts})")
     p.add_argument("--runs", type=runs_folder, help="only the environments where these recordings collided")
     args = p.parse_args(argv)
-    if args.envs < 1 or args.env0 < 0 or args.starts < 1:
-        p.error(f"--envs and --starts must be >= 1 and --env0 >= 0, got {args.envs}, {args.starts}, {args.env0}")
     horizons = args.horizons
     envs = range(args.env0, args.env0 + args.envs)
     collisions = recorded_collisions(args.runs, args.goal, envs) if args.runs else None

@@ -139,27 +139,24 @@ class SyntheticRun:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from recorder.cli import OneLineParser, path_text
+    from recorder.cli import OneLineParser, path_text, positive
     from recorder.recorder import MCAP_MESH_EVERY, Recorder
 
     parser = OneLineParser(prog="python -m recorder.synthetic", description=__doc__.split("\n\n")[0])
     parser.add_argument("out", type=path_text, help="output path without suffix")
-    parser.add_argument("--steps", type=int, default=20)
-    parser.add_argument("--links", type=int, default=4)
+    parser.add_argument("--steps", type=positive, default=20)
+    parser.add_argument("--links", type=positive, default=4)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--dt", type=float, default=0.05, help="sim time per step [s]")
     parser.add_argument("--pose-goal", action="store_true", help="a pose goal (approach along +x)")
     parser.add_argument("--viewer", nargs="?", const=True, default=False, metavar="URL",
                         help="also stream to a Rerun Viewer (the local one, or the one at URL)")
-    parser.add_argument("--mcap-mesh-every", type=int, default=MCAP_MESH_EVERY)
-    parser.add_argument("--flush-every", type=int, default=50)
+    parser.add_argument("--mcap-mesh-every", type=positive, default=MCAP_MESH_EVERY)
+    parser.add_argument("--flush-every", type=positive, default=50)
     parser.add_argument("--step-delay", type=float, default=0.0, help="wall seconds to wait after each step")
     parser.add_argument("--print-steps", action="store_true", help="print 'step K' after each recorded step")
     parser.add_argument("--overwrite", action="store_true")
     args = parser.parse_args(argv)
-    for name in ("steps", "links", "mcap_mesh_every", "flush_every"):
-        if getattr(args, name) < 1:
-            parser.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
     if not (0 < args.dt < math.inf and 0 <= args.step_delay < math.inf):
         parser.error(f"--dt must be finite and > 0, and --step-delay finite and >= 0, "
                      f"got {args.dt} and {args.step_delay}")

@@ -36,7 +36,7 @@ from ncedf.geometry import robot_mesh_arrays
 from ncedf.mppi import MPPIConfig
 from ncedf.robot import RobotSpec, forward_kinematics
 from recorder import Recorder, RecordingInterrupted
-from recorder.cli import EXIT_STATUS, OneLineParser, Stopped, exit_with, path_text, stop_on_signals
+from recorder.cli import EXIT_STATUS, OneLineParser, Stopped, exit_with, path_text, positive, stop_on_signals
 from scenarios.episode import obstacle_shapes
 from scenarios.oracle import OracleConfig, closest_approach, plan_reach
 from scenarios.spheres import MAX_STEPS, TOLERANCE, make_environment
@@ -163,11 +163,12 @@ def open_environments(folder: Path) -> tuple[list[tuple[int, str, int]], int]:
     from analysis.load import load, sphere_episodes
 
     recordings = load(folder)
-    if recordings.scenario("spheres").empty:
+    spheres = recordings.scenario("spheres")
+    if spheres.empty:
         raise ValueError(f"no dynamic-sphere episodes in {folder} (python -m scenarios.spheres or a sweep of them "
                          "records them)")
     runs = sphere_episodes(recordings)
-    others = len(recordings.scenario("spheres")) - len(runs)
+    others = len(spheres) - len(runs)
     if runs.empty:
         return [], others
     keys = ["links", "goal_kind", "env_seed"]
@@ -192,13 +193,11 @@ def parse_args(argv=None):
                       epilog="Exit status: 0 done, 2 bad arguments or no sphere episodes, 130/143 interrupted (run it "
                              "again to finish).")
     p.add_argument("runs", type=path_text, help="folder of sphere recordings (a sweep's or the reproduction's)")
-    p.add_argument("--starts", type=int, default=OracleConfig.starts,
+    p.add_argument("--starts", type=positive, default=OracleConfig.starts,
                    help=f"random starts of each oracle search (default {OracleConfig.starts})")
     args = p.parse_args(argv)
     if not Path(args.runs).is_dir():
         p.error(f"{args.runs} is not a folder of recordings")
-    if args.starts < 1:
-        p.error(f"--starts must be >= 1, got {args.starts}")
     return args
 
 
