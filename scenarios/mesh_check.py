@@ -6,10 +6,11 @@ sliver the BVH skips, :data:`SLIVER_RATIO`) whose long edge is not an edge
 of a proper face: its points would be missed. Degenerate faces whose long edge is shared with a
 proper face add no point to the surface; they are dropped with a warning.
 
-Warnings (:class:`MeshWarning`, one line): an open or non-manifold surface (an edge not shared by
-exactly two faces, or faces wound inconsistently) has no inside; the judge takes it as a surface,
-exactly. A closed mesh (every edge shared by two consistently wound faces, once equal vertices are shared)
-bounds a solid.
+Warnings (:class:`MeshWarning`, one line): an open surface (an edge traversed more often in one
+direction than in the other: a hole's rim, a fin, faces wound inconsistently) has no inside; the
+judge takes it as a surface, exactly. A closed mesh (every edge traversed as often each way, once
+equal vertices are shared: one closed surface, or solids touching at their vertices, edges or faces)
+bounds a solid, the points of winding number at least one half.
 """
 
 from __future__ import annotations
@@ -89,12 +90,15 @@ def _drop_degenerate(vertices: np.ndarray, faces: np.ndarray, name: str) -> np.n
 
 
 def _closed(faces: np.ndarray, n: int) -> bool:
-    """Every undirected edge in exactly two faces, traversed once in each direction."""
+    """Every undirected edge traversed by the faces as often in one direction as in the other.
+
+    Then the faces are a sum of closed surfaces (their oriented boundary is empty), and the winding
+    number, the sum of the faces' signed solid angles over 4 pi, is an integer off them that counts
+    the solids around a point: exact for one closed manifold surface (each edge in two faces, once
+    each way) and for solids that touch at shared vertices, edges or faces (an edge in four faces)."""
     a, b = faces.ravel(), faces[:, [1, 2, 0]].ravel()
-    directed = a * n + b
-    undirected = _edge_keys(a, b, n)
-    _, counts = np.unique(undirected, return_counts=True)
-    return bool(np.all(counts == 2) and len(np.unique(directed)) == len(directed))
+    _, edge = np.unique(_edge_keys(a, b, n), return_inverse=True)
+    return not np.any(np.bincount(edge.ravel(), weights=np.where(a < b, 1.0, -1.0)))
 
 
 def _signed_volume(vertices: np.ndarray, faces: np.ndarray) -> float:
@@ -148,6 +152,6 @@ def check_mesh(vertices, faces, name: str) -> CheckedMesh:
     if closed and _signed_volume(vertices, faces) < 0:
         faces = faces[:, ::-1]  # wound inwards: the same solid, its faces turned outwards
     if not closed:
-        warnings.warn(MeshWarning(f"mesh {name!r} is open or non-manifold: it has no inside and is judged as a "
-                                  "surface"), stacklevel=3)
+        warnings.warn(MeshWarning(f"mesh {name!r} is open or wound inconsistently (an edge in more of its faces "
+                                  "one way than the other): it has no inside and is judged as a surface"), stacklevel=3)
     return CheckedMesh(vertices, faces, closed, *_components(vertices, faces))

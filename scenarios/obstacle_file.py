@@ -76,9 +76,6 @@ def _cloud_array(points, path: str) -> np.ndarray:
     return arr
 
 
-# ----------------------------------------------------------------------------- observation
-
-
 
 def _check_declared_faces(path: str, ext: str) -> None:
     """Refuse a binary STL or a PLY whose header declares more than MAX_FACES faces, before reading it."""

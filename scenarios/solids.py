@@ -1,8 +1,8 @@
 """The solids the confined-space worlds are built of, as closed triangle meshes, their seeds and density.
 
-Pieces of one obstacle overlap by ``OVERLAP`` instead of touching, so that each stays a closed
-mesh of its own (touching faces would share edges between four faces); the obstacle is their
-union, one :class:`scenarios.world.MeshObstacle` with a component per piece.
+Pieces of one obstacle overlap by ``OVERLAP``, each a closed mesh of its own that shares no vertex
+with another; the obstacle is their union, one :class:`scenarios.world.MeshObstacle` with a
+component per piece.
 """
 
 from __future__ import annotations

@@ -172,7 +172,7 @@ class MeshObstacle:
 
     @property
     def closed(self) -> bool:
-        """Whether every edge joins two consistently wound faces: the mesh bounds a solid."""
+        """Whether the faces are closed surfaces (``scenarios.mesh_check``): the mesh bounds a solid."""
         return self._checked.closed
 
     @property

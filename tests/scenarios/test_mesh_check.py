@@ -49,12 +49,14 @@ def test_bad_mesh_files_give_one_line_naming_the_file_and_the_problem(tmp_path, 
     assert name in message and "\n" not in message and problem in message
 
 
-def test_an_open_or_non_manifold_mesh_is_a_surface_with_one_warning(tmp_path):
+def test_an_open_or_inconsistently_wound_mesh_is_a_surface_with_one_warning(tmp_path):
     open_path = tmp_path / "open.obj"
     open_path.write_text(TETRA.rsplit("f", 1)[0])  # one face missing
     fin = tmp_path / "fin.obj"
     fin.write_text(TETRA + "v 1 1 0\nf 1 2 5\n")  # a third face on the edge 1-2
-    for path in (open_path, fin):
+    turned = tmp_path / "turned.obj"
+    turned.write_text(TETRA.replace("f 2 3 4", "f 2 4 3"))  # one face wound against the others
+    for path in (open_path, fin, turned):
         with pytest.warns(MeshWarning) as caught:
             mesh = load_obstacle(path)
         assert len(caught) == 1 and path.name in str(caught[0].message) and "\n" not in str(caught[0].message)
@@ -80,3 +82,19 @@ def test_a_closed_mesh_is_closed_whatever_its_winding_and_vertex_sharing(tmp_pat
     # turned outwards: the volume the faces bound is positive
     tri = inward.triangles
     assert np.sum(tri[:, 0] * np.cross(tri[:, 1], tri[:, 2])) / 6 == pytest.approx(6.0)
+
+
+def test_solids_touching_at_a_face_or_an_edge_are_closed_and_their_insides_inside(tmp_path):
+    """Boxes written as one mesh whose shared corners merge: an edge in four faces (two each way) is
+    no hole, and the winding number counts each box's inside (a point in the seam is on the surface)."""
+    a = trimesh.creation.box(bounds=[(0, 0, 0), (1, 1, 1)])
+    b = trimesh.creation.box(bounds=[(1, 0, 0), (2, 1, 1)])  # shares a's face x = 1
+    c = trimesh.creation.box(bounds=[(2, 1, 0), (3, 2, 1)])  # shares b's edge x = 2, y = 1
+    trimesh.util.concatenate([a, b, c]).export(tmp_path / "blocks.stl")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        mesh = load_obstacle(tmp_path / "blocks.stl")
+    assert len(mesh.vertices) == 8 + 4 + 6 and mesh.closed  # 8 + 8 + 8 corners less 4 and 2 shared
+    inside = mesh.index.inside(np.array([[0.5, 0.5, 0.5], [1.5, 0.5, 0.5], [2.5, 1.5, 0.5], [2.5, 0.5, 0.5],
+                                         [1.5, 1.5, 0.5], [1.5, 0.5, 1.5]]))
+    assert inside.tolist() == [True, True, True, False, False, False]

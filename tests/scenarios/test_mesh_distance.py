@@ -9,6 +9,7 @@ The robot is a small two-link one (L = 0.2 m, r = 2 cm), so that 1 mm is a real 
 from __future__ import annotations
 
 import math
+import warnings
 
 import jax
 import jax.numpy as jnp
@@ -188,6 +189,25 @@ def test_the_robot_wholly_inside_a_closed_mesh_is_a_collision(arcs):
     assert depth.min() > 0 and room.contains(surface[:1])[0]
     value, certificate = judged(room, arcs[1])
     # the truth is -dist(R, T), in [-depth.min(), -(depth.min() - cover)]; the value never below it
+    assert -depth.min() - 1e-5 <= value and value - certificate <= -(depth.min() - cover) + 1e-5
+    assert value < 0 and certificate <= CERTIFIED
+
+
+def test_the_robot_inside_one_of_two_boxes_sharing_a_face_is_a_collision(arcs):
+    """Two closed boxes written as one mesh, their shared face's corners merged (its edges in four
+    faces): still a solid, so a robot inside one of them, clear of every face, collides."""
+    frames = np.asarray(forward_kinematics(jnp.asarray(arcs[1]), SPEC))
+    centre = frames[1, :3, 3]
+    room = trimesh.creation.box(bounds=[centre - 0.4, centre + 0.4])
+    annex = trimesh.creation.box(bounds=[centre + (0.4, -0.4, -0.4), centre + (0.9, 0.4, 0.4)])
+    both = trimesh.util.concatenate([room, annex])
+    surface, cover = dense_surface(arcs[1])
+    # the annex lies beyond the room's face x = 0.4, so the room's face planes are the nearest (closed form)
+    depth = np.min(0.4 - np.abs(surface - centre), axis=1)
+    assert depth.min() > 0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        value, certificate = judged(both, arcs[1])
     assert -depth.min() - 1e-5 <= value and value - certificate <= -(depth.min() - cover) + 1e-5
     assert value < 0 and certificate <= CERTIFIED
 
