@@ -24,7 +24,8 @@ from typing import Callable
 from ncedf.compile_cache import add_cache_option, enable_compile_cache
 from ncedf.presets import DEFAULT, PRESETS, SUMMARIES
 from recorder import RecorderError
-from recorder.cli import EXIT_STATUS, OneLineParser, Stopped, one_line_warnings, path_text, stop_on_signals
+from recorder.cli import (EXIT_STATUS, OneLineParser, Stopped, one_line_warnings, path_text, positive,
+                          stop_on_signals)
 from recorder.recorder import FORMATS, check_writable, output_paths
 from scenarios.episode import Episode, EpisodeResult, EpisodeSettings
 
@@ -40,7 +41,7 @@ def make_parser(scenario: str, description: str, *, links: int = 4, max_steps: i
     p = OneLineParser(prog=f"python -m scenarios.{scenario}", description=description,
                       epilog=f"controllers (--controller):\n{controllers}",
                       formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--links", type=int, default=links, help=f"robot links (default {links})")
+    p.add_argument("--links", type=positive, default=links, help=f"robot links (default {links})")
     p.add_argument("--seed", type=int, default=0, help="controller seed: the MPPI sampling noise (default 0)")
     p.add_argument("--env-seed", type=int, default=0,
                    help="environment seed: random obstacles, port and goal, observed surface points (default 0)")
@@ -54,13 +55,13 @@ def make_parser(scenario: str, description: str, *, links: int = 4, max_steps: i
                                                 "--goal is unscaled (default 1)")
     p.add_argument("--controller", choices=tuple(PRESETS), default=DEFAULT,
                    help=f"controller preset, listed below (default {DEFAULT})")
-    p.add_argument("--samples", type=int, help="MPPI rollouts (default: the controller's)")
-    p.add_argument("--horizon", type=int, help="MPPI horizon in steps (default: the controller's)")
-    p.add_argument("--max-steps", type=int, help=f"step budget (default {max_steps})")
+    p.add_argument("--samples", type=positive, help="MPPI rollouts (default: the controller's)")
+    p.add_argument("--horizon", type=positive, help="MPPI horizon in steps (default: the controller's)")
+    p.add_argument("--max-steps", type=positive, help=f"step budget (default {max_steps})")
     p.add_argument("--out", default="recording", type=path_text,
                    help="recording path without suffix (default: recording -> recording.rrd, recording.mcap)")
     p.add_argument("--formats", default=",".join(FORMATS), help="comma-separated subset of rrd,mcap (default rrd,mcap)")
-    p.add_argument("--mesh-every", type=int, default=1, help="record the robot mesh every N steps (default 1)")
+    p.add_argument("--mesh-every", type=positive, default=1, help="record the robot mesh every N steps (default 1)")
     p.add_argument("--overwrite", action="store_true", help="replace existing recordings")
     p.add_argument("--viewer", action="store_true", help="also stream live to a Rerun viewer")
     add_cache_option(p)
@@ -134,8 +135,6 @@ def _run(parser: argparse.ArgumentParser, argv: list[str] | None,
             try:
                 settings = make_settings(args)
                 formats = parse_formats(args.formats)
-                if args.mesh_every < 1:
-                    raise ValueError(f"--mesh-every must be >= 1, got {args.mesh_every}")
                 episode = Episode(settings)
                 check_writable(output_paths(args.out, formats), args.overwrite)
             except (ValueError, RecorderError) as exc:

@@ -422,7 +422,7 @@ def run_table(table: str, out: Path, budget: Budget, seed: int, command: str, ex
 
 # ---------------------------------------------------------------- CLI
 def parse_args(argv=None):
-    from recorder.cli import OneLineParser, path_text
+    from recorder.cli import OneLineParser, path_text, positive
 
     p = OneLineParser(prog="python -m scenarios.reproduce", description=__doc__.split("\n\n")[0],
                       epilog="Exit status: 0 done, 1 some episodes failed, 2 bad arguments, 130/143 interrupted "
@@ -431,17 +431,17 @@ def parse_args(argv=None):
     p.add_argument("--out", type=path_text, default="runs", help="folder of the recordings (default runs/)")
     p.add_argument("--quick", action="store_true",
                    help="a smoke-sized version of every experiment (a fraction of the time)")
-    p.add_argument("--epochs", type=int, help=f"training epochs per network (default {PAPER_EPOCHS}, quick 1)")
-    p.add_argument("--envs", type=int, help=f"Table III environments per representation (default {EpisodeBudget.envs})")
-    p.add_argument("--envs-5000", type=int, metavar="N",
+    p.add_argument("--epochs", type=positive, help=f"training epochs per network (default {PAPER_EPOCHS}, quick 1)")
+    p.add_argument("--envs", type=positive, help=f"Table III environments per representation (default {EpisodeBudget.envs})")
+    p.add_argument("--envs-5000", type=positive, metavar="N",
                    help=f"Table III environments for pointcloud:5000 (default {EpisodeBudget.envs_5000})")
-    p.add_argument("--seeds", type=int, help=f"Table IV controller seeds (default {EpisodeBudget.seeds})")
-    p.add_argument("--env-seeds", type=int, metavar="N",
+    p.add_argument("--seeds", type=positive, help=f"Table IV controller seeds (default {EpisodeBudget.seeds})")
+    p.add_argument("--env-seeds", type=positive, metavar="N",
                    help=f"environment seeds of Table IV and the worlds (default {EpisodeBudget.env_seeds})")
-    p.add_argument("--timing-repeats", type=int, metavar="N",
+    p.add_argument("--timing-repeats", type=positive, metavar="N",
                    help=f"timed steps per network or timing case (default {TimingBudget.repeats}, "
                         f"quick {QUICK.timing.repeats})")
-    p.add_argument("--workers", type=int, help="sweep worker processes (default: one per core)")
+    p.add_argument("--workers", type=positive, help="sweep worker processes (default: one per core)")
     p.add_argument("--executor", choices=("local", "ray"), default="local", metavar="E",
                    help="run the sweeps in local processes or on Ray: local, ray (default local)")
     p.add_argument("--address", help="Ray cluster address (default: RAY_ADDRESS, or a local Ray)")
@@ -456,15 +456,12 @@ OVERRIDES = {"epochs": ("networks", "epochs"), "envs": ("episodes", "envs"), "en
 
 
 def budget_from(args) -> Budget:
-    """The budget of the parsed options: the quick or full one, with the options given; ValueError
-    naming an option below 1."""
+    """The budget of the parsed options: the quick or full one, with the options given."""
     budget = QUICK if args.quick else Budget()
     for option, (part, field) in OVERRIDES.items():
         value = getattr(args, option)
         if value is None:
             continue
-        if value < 1:
-            raise ValueError(f"--{option.replace('_', '-')} must be >= 1, got {value}")
         budget = dataclasses.replace(budget, **{part: dataclasses.replace(getattr(budget, part), **{field: value})})
     return budget
 
@@ -475,11 +472,7 @@ def main(argv=None) -> int:
     from recorder.recorder import check_creatable
 
     args = parse_args(argv)
-    try:
-        budget = budget_from(args)
-    except ValueError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    budget = budget_from(args)
     out = Path(args.out)
     try:
         check_creatable(out, "recordings")

@@ -76,7 +76,8 @@ from typing import TYPE_CHECKING, Callable, Sequence
 from tqdm import tqdm
 
 from recorder import IncompleteRecordingWarning, RecorderError, RecordingInterrupted, load_run
-from recorder.cli import EXIT_STATUS, OneLineParser, Stopped, exit_with, one_line_warnings, path_text, stop_on_signals
+from recorder.cli import (EXIT_STATUS, OneLineParser, Stopped, exit_with, one_line_warnings, path_text, positive,
+                          stop_on_signals)
 from recorder.recorder import FORMATS, check_creatable, output_paths
 from scenarios import manifest
 
@@ -696,12 +697,12 @@ def parse_args(argv=None) -> argparse.Namespace:
                            f"(default {EpisodeSettings.shape})")
     grid.add_argument("--controllers", type=_csv(str, "controller names"),
                       help=f"MPPI presets: {', '.join(controllers)} (default {EpisodeSettings.controller})")
-    grid.add_argument("--envs", type=int, default=1, help="environment seeds 0..N-1 (default 1)")
-    grid.add_argument("--seeds", type=int, default=1, help="controller seeds 0..N-1 (default 1)")
+    grid.add_argument("--envs", type=positive, default=1, help="environment seeds 0..N-1 (default 1)")
+    grid.add_argument("--seeds", type=positive, default=1, help="controller seeds 0..N-1 (default 1)")
     ep = p.add_argument_group("every episode")
-    ep.add_argument("--samples", type=int, help="MPPI rollouts (default: the controller's)")
-    ep.add_argument("--horizon", type=int, help="MPPI horizon (default: the controller's)")
-    ep.add_argument("--max-steps", type=int, help="step budget (default: the scenario's)")
+    ep.add_argument("--samples", type=positive, help="MPPI rollouts (default: the controller's)")
+    ep.add_argument("--horizon", type=positive, help="MPPI horizon (default: the controller's)")
+    ep.add_argument("--max-steps", type=positive, help="step budget (default: the scenario's)")
     ep.add_argument("--goal", metavar="GOAL", help=f"{', '.join(GOALS)} or X,Y,Z in m (spheres and cluttered; "
                                                    f"default {EpisodeSettings.goal})")
     ep.add_argument("--model", type=path_text,
@@ -713,9 +714,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     run.add_argument("--formats", type=_csv(str, "formats"), default=DEFAULT_FORMATS,
                      help=f"recording formats, of {', '.join(FORMATS)} (default mcap)")
     run.add_argument("--executor", choices=EXECUTORS, default="local")
-    run.add_argument("--workers", type=int, help=f"local worker processes (default: one per core, {_cpu_count()})")
+    run.add_argument("--workers", type=positive, help=f"local worker processes (default: one per core, {_cpu_count()})")
     run.add_argument("--address", help="Ray cluster address (default: RAY_ADDRESS, or a local Ray)")
-    run.add_argument("--recycle", type=int, default=RECYCLE_EVERY,
+    run.add_argument("--recycle", type=positive, default=RECYCLE_EVERY,
                      help=f"episodes per worker process before it is replaced (default {RECYCLE_EVERY})")
     return p.parse_args(argv)
 

@@ -2,6 +2,8 @@
 
 from collections import Counter
 
+import pytest
+
 from scenarios import WORLDS
 from scenarios.reproduce import TABLE4_LINKS, budget_from, main, parse_args, sweep_episodes
 
@@ -25,9 +27,11 @@ def test_the_worlds_run_the_environment_seeds_with_one_controller_seed():
 
 def test_an_option_below_one_is_a_one_line_error_and_writes_nothing(tmp_path, capsys):
     out = tmp_path / "runs"
-    assert main(["table4", "--env-seeds", "0", "--out", str(out)]) == 2
+    with pytest.raises(SystemExit) as exit:
+        main(["table4", "--env-seeds", "0", "--out", str(out)])
+    assert exit.value.code == 2
     err = capsys.readouterr().err.strip()
-    assert err == "error: --env-seeds must be >= 1, got 0"
+    assert err == "python -m scenarios.reproduce: error: argument --env-seeds: must be >= 1, got 0"
     assert not out.exists()
 
 
