@@ -181,12 +181,12 @@ def test_ray_runs_the_same_episodes(swept, tmp_path):
 
 
 @pytest.mark.parametrize("args, named", [
-    (["--envs", "0"], "envs .*0"),
+    (["--envs", "0"], "--envs: .*0"),
     (["--links", "4,x"], "'4,x'"),
     (["--shapes", "spheres,bogus"], "'bogus'"),
     (["--controllers", "fast"], "'fast'"),
     (["--formats", "mp4"], "'mp4'"),
-    (["--workers", "0"], "workers .*0"),
+    (["--workers", "0"], "--workers: .*0"),
     (["--option", "nokey"], "'nokey'"),
     (["--executor", "ray", "--workers", "2"], "--workers"),
     (["--links", "4,5,4"], "L4_spheres.* more than once"),
