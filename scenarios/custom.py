@@ -1,7 +1,7 @@
 """A user's own world: one obstacle file (mesh or point cloud) and a goal position.
 
 The obstacle is read by ``scenarios.obstacle_file.load_obstacle`` (trimesh: .stl .obj
-.ply .off .glb ...; a .ply without faces, .xyz or .npy is a bare point cloud),
+.ply .off .glb ...; a .ply without faces, a PCL .pcd, .xyz or .npy is a bare point cloud),
 shifted by ``--offset``. Mesh surfaces are observed at ``--density`` points per
 square metre, by default the confined worlds' (``scenarios.solids.DENSITY``), at
 which an opening the robot fits through is wider than the holes between the
@@ -103,7 +103,7 @@ def warn_of_the_goal(scene: Scene, named: str) -> None:
 def main(argv: list[str] | None = None) -> int:
     parser = make_parser("custom", __doc__, max_steps=MAX_STEPS)
     parser.add_argument("--obstacles", required=True, type=path_text, metavar="FILE",
-                        help="obstacle mesh or point-cloud file")
+                        help="obstacle mesh (.stl .obj .ply .glb ...) or point cloud (.pcd .ply .xyz .npy), m")
     parser.add_argument("--goal", required=True, metavar="X,Y,Z", help="goal position, m")
     parser.add_argument("--offset", default="0,0,0", metavar="X,Y,Z", help="shift of the obstacle, m (default 0,0,0)")
     parser.add_argument("--density", default=str(DENSITY),

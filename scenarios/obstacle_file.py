@@ -13,6 +13,7 @@ import warnings
 import numpy as np
 
 from scenarios.mesh_check import MAX_FACES
+from scenarios.pcd import read_pcd
 from scenarios.world import CloudObstacle, MeshObstacle, WorldError, finite_vector
 
 
@@ -20,9 +21,10 @@ def load_obstacle(path, offset=(0.0, 0.0, 0.0)) -> MeshObstacle | CloudObstacle:
     """Read an obstacle from a user's file and shift it by ``offset`` (3,) m.
 
     Meshes (.stl .obj .ply .off .glb ...) are read with trimesh (a scene is
-    merged into one mesh) -> :class:`MeshObstacle`; a .ply without faces, an
-    .xyz text file (x y z per line, extra columns ignored) or a .npy (P, 3)
-    array -> :class:`CloudObstacle`. Raises :class:`WorldError` naming the file.
+    merged into one mesh) -> :class:`MeshObstacle`; a .ply without faces, a
+    PCL .pcd (``scenarios.pcd``), an .xyz text file (x y z per line, extra
+    columns ignored) or a .npy (P, 3) array -> :class:`CloudObstacle`. Raises
+    :class:`WorldError` naming the file.
     """
     import trimesh
 
@@ -38,6 +40,11 @@ def load_obstacle(path, offset=(0.0, 0.0, 0.0)) -> MeshObstacle | CloudObstacle:
     try:
         if ext == ".npy":
             points = np.load(path, allow_pickle=False)
+            return CloudObstacle(_cloud_array(points, path) + shift, name)
+        if ext == ".pcd":
+            points, dropped = read_pcd(path)
+            if dropped:
+                warnings.warn(f"obstacle file {path!r}: dropped {dropped} invalid (NaN) points", stacklevel=2)
             return CloudObstacle(_cloud_array(points, path) + shift, name)
         if ext == ".xyz":
             with warnings.catch_warnings():  # an empty file: the shape check below says so, on one line

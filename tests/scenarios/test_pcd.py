@@ -1,0 +1,66 @@
+"""PCL .pcd clouds as obstacles (scenarios.pcd through scenarios.obstacle_file.load_obstacle).
+
+Truths: files written here byte by byte (ascii text, and binary records packed field by field with
+struct in the layout the PCD format defines), their coordinates known."""
+
+from __future__ import annotations
+
+import struct
+
+import numpy as np
+import pytest
+
+from scenarios.obstacle_file import load_obstacle
+from scenarios.world import CloudObstacle, WorldError
+
+XYZ = np.array([[1.0, 2.0, 3.0], [-0.5, 0.25, 4.0], [3.0, 0.0, 0.125]])
+
+
+def header(fields, sizes, types, counts, points, data) -> bytes:
+    lines = ["# .PCD v0.7 - Point Cloud Data file format", "VERSION 0.7", "FIELDS " + " ".join(fields),
+             "SIZE " + " ".join(map(str, sizes)), "TYPE " + " ".join(types), "COUNT " + " ".join(map(str, counts)),
+             f"WIDTH {points}", "HEIGHT 1", "VIEWPOINT 0 0 0 1 0 0 0", f"POINTS {points}", f"DATA {data}"]
+    return ("\n".join(lines) + "\n").encode()
+
+
+def test_an_ascii_cloud_with_other_fields_and_an_invalid_point(tmp_path):
+    path = tmp_path / "scan.pcd"
+    rows = [f"{x} {y} {z} 0.7 1 2 3" for x, y, z in XYZ] + ["nan nan nan 0 0 0 0"]
+    path.write_bytes(header(["x", "y", "z", "intensity", "normal"], [4, 4, 4, 4, 4], "FFFFF", [1, 1, 1, 1, 3], 4,
+                            "ascii") + "\n".join(rows).encode() + b"\n")
+    with pytest.warns(UserWarning, match="dropped 1 invalid"):
+        cloud = load_obstacle(path, offset=(1.0, 0.0, 0.0))
+    assert isinstance(cloud, CloudObstacle)
+    np.testing.assert_array_equal(cloud.points, XYZ + [1.0, 0.0, 0.0])
+
+
+def test_a_binary_cloud_of_mixed_field_types_in_any_field_order(tmp_path):
+    """Records: ring (uint16), z x (float32), rgb (uint8 x 4), y (float64), packed without padding."""
+    path = tmp_path / "lidar.pcd"
+    body = b"".join(struct.pack("<Hff4Bd", ring, z, x, 9, 8, 7, 6, y) for ring, (x, y, z) in enumerate(XYZ))
+    path.write_bytes(header(["ring", "z", "x", "rgb", "y"], [2, 4, 4, 1, 8], "UFFUF", [1, 1, 1, 4, 1], len(XYZ),
+                            "binary") + body)
+    np.testing.assert_array_equal(load_obstacle(path).points, XYZ)
+
+
+@pytest.mark.parametrize("change, problem", [
+    (lambda raw: raw[:-5], "need 60 bytes"),
+    (lambda raw: raw.replace(b"FIELDS x y z\n", b"FIELDS a b c\n"), "no x, y, z"),
+    (lambda raw: raw.replace(b"SIZE 4 4 4\n", b""), "lacks SIZE"),
+    (lambda raw: raw.replace(b"DATA binary", b"DATA binary_compressed"), "convert it to binary"),
+    (lambda raw: raw.replace(b"DATA binary\n", b""), "no DATA line"),
+])
+def test_a_bad_pcd_is_one_line_naming_the_file_and_the_problem(tmp_path, change, problem):
+    path = tmp_path / "bad.pcd"
+    body = b"".join(struct.pack("<3f", *p) for p in np.vstack([XYZ, XYZ[::-1], XYZ[:-1]]))
+    path.write_bytes(change(header(["x", "y", "z"], [4, 4, 4], "FFF", [1, 1, 1], 5, "binary") + body[:60]))
+    with pytest.raises(WorldError) as err:
+        load_obstacle(path)
+    assert "bad.pcd" in str(err.value) and problem in str(err.value) and "\n" not in str(err.value)
+
+
+def test_a_cloud_of_invalid_points_only_is_refused(tmp_path):
+    path = tmp_path / "empty.pcd"
+    path.write_bytes(header(["x", "y", "z"], [4, 4, 4], "FFF", [1, 1, 1], 2, "ascii") + b"nan nan nan\nnan 0 0\n")
+    with pytest.warns(UserWarning, match="dropped 2"), pytest.raises(WorldError, match="N >= 1"):
+        load_obstacle(path)
