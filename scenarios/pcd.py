@@ -5,10 +5,13 @@ A header of ``KEY values`` lines (FIELDS, SIZE, TYPE, COUNT, WIDTH, HEIGHT, POIN
 the fields x, y, z are read, in metres, as written (VIEWPOINT is the sensor's pose, which PCL's
 reader does not apply either). Points with a NaN or infinite coordinate are the format's
 invalid points (an organized cloud's pixels without a return) and are dropped. ``binary_compressed``
-data (LZF) is not read: the message says how to convert it.
+data is the binary records' fields one after the other (all x, then all y, ...), compressed with LZF
+(:func:`lzf_decompress`) after two little-endian uint32: the compressed and the raw size.
 """
 
 from __future__ import annotations
+
+import struct
 
 import numpy as np
 
@@ -72,8 +75,19 @@ def _records(raw: bytes, offset: int, dtype: np.dtype, points: int, data: str) -
         flat = np.dtype([(name, "<f8", dtype[name].shape) for name in dtype.names])
         return values.view(flat).reshape(points)
     if data == "binary_compressed":
-        raise ValueError("binary_compressed data is not read; convert it to binary first (PCL: "
-                         "pcl_convert_pcd_ascii_binary IN OUT 1)")
+        if len(raw) - offset < 8:
+            raise ValueError("binary_compressed data without its sizes")
+        packed, size = struct.unpack_from("<II", raw, offset)
+        if size != points * dtype.itemsize:
+            raise ValueError(f"{points} points need {points * dtype.itemsize} bytes, the data says {size}")
+        fields = lzf_decompress(raw[offset + 8: offset + 8 + packed], size)
+        out, start = np.empty(points, dtype), 0
+        for name in dtype.names:  # field by field, each (points, count)
+            width = dtype[name].itemsize * points
+            out[name] = np.frombuffer(fields, dtype[name].base, offset=start,
+                                      count=points * int(np.prod(dtype[name].shape))).reshape(out[name].shape)
+            start += width
+        return out
     raise ValueError(f"unknown DATA {data!r} (ascii, binary or binary_compressed)")
 
 
@@ -88,3 +102,35 @@ def read_pcd(path: str) -> tuple[np.ndarray, int]:
     xyz = np.stack([records[axis][:, 0] for axis in "xyz"], axis=-1).astype(np.float64)
     finite = np.all(np.isfinite(xyz), axis=1)
     return xyz[finite], int(points - finite.sum())
+
+
+def lzf_decompress(data: bytes, size: int) -> bytes:
+    """LZF's ``size`` bytes from ``data``: a control byte c < 32 is followed by c + 1 literal bytes;
+    otherwise its top 3 bits n (7: plus the next byte) and its low 5 bits with the next byte, o,
+    copy n + 2 bytes from o + 1 back in the output (overlapping: a repeated pattern)."""
+    out, i = bytearray(), 0
+    while i < len(data):
+        control = data[i]
+        i += 1
+        if control < 32:
+            out += data[i: i + control + 1]
+            i += control + 1
+            continue
+        if i + (control >> 5 == 7) >= len(data):
+            raise ValueError("corrupt binary_compressed data (it ends inside a reference)")
+        length = control >> 5
+        if length == 7:
+            length += data[i]
+            i += 1
+        start = len(out) - ((control & 31) << 8) - data[i] - 1
+        i += 1
+        if start < 0:
+            raise ValueError("corrupt binary_compressed data (a reference before the start)")
+        if start + length + 2 <= len(out):
+            out += out[start: start + length + 2]
+        else:  # the copy overlaps what it writes: byte by byte
+            for k in range(length + 2):
+                out.append(out[start + k])
+    if len(out) != size:
+        raise ValueError(f"corrupt binary_compressed data ({len(out)} bytes, the header says {size})")
+    return bytes(out)
