@@ -5,7 +5,8 @@ The obstacle is read by ``scenarios.obstacle_file.load_obstacle`` (trimesh: .stl
 shifted by ``--offset``. Mesh surfaces are observed at ``--density`` points per
 square metre, by default the confined worlds' (``scenarios.solids.DENSITY``), at
 which an opening the robot fits through is wider than the holes between the
-samples; a cloud's points are observed as they are. The robot's base is
+samples; a cloud's points are observed as they are, or one per cube of ``--voxel`` m (a dense
+scan thinned; the judge keeps every point). The robot's base is
 the origin, its first tangent +z (it starts straight up, 2 m per link). A goal that no motion
 reaches (beyond the robot's length, inside the obstacle, or too near it for the tip) is warned of.
 An obstacle observed at more than ``scenarios.observe.MAX_OBSERVED`` points is refused (coordinates are metres: a
@@ -14,7 +15,7 @@ file in millimetres is a million times too large in area).
     python -m scenarios.custom --obstacles part.stl --offset 3,0,2 --goal 4,0,4
 
 Scenario options (kept in the run's settings): obstacles (absolute path),
-goal_position, offset, density, tolerance.
+goal_position, offset, density, tolerance, voxel.
 
 The controller is the one every world gets (``ncedf.presets``): with
 ``--controller ours`` it closes the observed cloud's clusters where every still
@@ -33,14 +34,14 @@ from recorder.cli import path_text
 from scenarios.cli import base_settings, make_parser, run_cli
 from scenarios.episode import (EpisodeSettings, GoalWarning, Scene, make_scene, option_positive, option_vector,
                                require_fixed_goal, scenario_options)
-from scenarios.observe import MAX_OBSERVED
+from scenarios.observe import MAX_OBSERVED, observed_cloud
 from scenarios.obstacle_file import load_obstacle
 from scenarios.solids import DENSITY
 from scenarios.world import CloudObstacle, World
 
 TOLERANCE = 0.2
 MAX_STEPS = 300
-OPTIONS = ("obstacles", "goal_position", "offset", "density", "tolerance")
+OPTIONS = ("obstacles", "goal_position", "offset", "density", "tolerance", "voxel")
 
 
 def build(settings: EpisodeSettings) -> Scene:
@@ -54,25 +55,31 @@ def build(settings: EpisodeSettings) -> Scene:
     offset = option_vector("offset", options.get("offset", "0,0,0"))
     density = option_positive("density", options.get("density", str(DENSITY)))
     tolerance = option_positive("tolerance", options.get("tolerance", str(TOLERANCE)))
+    voxel = option_positive("voxel", options["voxel"]) if "voxel" in options else None
     obstacle = load_obstacle(options["obstacles"], offset)
-    check_observed_count(obstacle, density, options["obstacles"])
     if isinstance(obstacle, CloudObstacle):
-        world = World(clouds=(obstacle,), density=density)
+        world = World(clouds=(obstacle,), density=density, cloud_voxel=voxel)
+    elif voxel is not None:
+        raise ValueError(f"{options['obstacles']}: --voxel thins a point cloud; a mesh is observed at --density")
     else:
         world = World(meshes=(obstacle,), density=density)
+    check_observed_count(obstacle, world, options["obstacles"])
     scene = make_scene(settings, world, goal, tolerance, MAX_STEPS)
     warn_of_the_goal(scene, options["goal_position"])
     return scene
 
 
-def check_observed_count(obstacle, density: float, named: str) -> None:
+def check_observed_count(obstacle, world: World, named: str) -> None:
     """ValueError where the obstacle would be observed at more than ``MAX_OBSERVED`` points: a cloud's
-    own points, or a mesh's area times ``density`` (a file in millimetres read as metres is a million
-    times too large)."""
+    own points (or one per voxel), or a mesh's area times the world's density (a file in millimetres
+    read as metres is a million times too large)."""
+    density = world.density
     if isinstance(obstacle, CloudObstacle):
-        if len(obstacle.points) > MAX_OBSERVED:
-            raise ValueError(f"{named}: {len(obstacle.points)} points, more than the {MAX_OBSERVED} a world may be "
-                             "observed at: downsample the cloud")
+        count = len(observed_cloud(obstacle.points, world.cloud_voxel))
+        if count > MAX_OBSERVED:
+            thinned = "" if world.cloud_voxel is None else f" at --voxel {world.cloud_voxel:g}"
+            raise ValueError(f"{named}: {count} points{thinned}, more than the {MAX_OBSERVED} a world may be observed "
+                             "at: thin the cloud with --voxel V (one point per cube of V m)")
         return
     count = obstacle.area * density  # in floats: a huge density overflows an int
     if count > MAX_OBSERVED:
@@ -109,10 +116,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--density", default=str(DENSITY),
                         help=f"observed points per square metre of mesh surface (default {DENSITY})")
     parser.add_argument("--tolerance", default=str(TOLERANCE), help=f"goal tolerance, m (default {TOLERANCE})")
+    parser.add_argument("--voxel", metavar="V", help="observe a point cloud one point per cube of V m, for a dense "
+                                                     "scan (default: every point)")
 
     def settings(args) -> EpisodeSettings:
         options = {"obstacles": str(Path(args.obstacles).resolve()), "goal_position": args.goal,
                    "offset": args.offset, "density": args.density, "tolerance": args.tolerance}
+        if args.voxel is not None:
+            options["voxel"] = args.voxel
         return base_settings("custom", args, options=tuple(options.items()))
 
     return run_cli(parser, argv, settings)

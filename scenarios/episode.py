@@ -425,6 +425,7 @@ def describe_world(world) -> dict:
         "observe": world.observe,
         "density": world.density,
         "sphere_points": world.sphere_points,
+        "cloud_voxel": world.cloud_voxel,
         "margin_extra": world.margin_extra,
         "spheres": [dataclasses.asdict(s) for s in world.spheres],
         "boxes": [dataclasses.asdict(b) for b in world.boxes],

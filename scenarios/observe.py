@@ -3,7 +3,7 @@
 Box faces get ``round(density * area)`` uniform points each; a mesh gets
 ``round(density * area)`` points over its surface, triangles drawn by area and
 points uniform on them (linear in the face count: fast for 10^6 faces); all
-cloud points; ``sphere_points`` points on each sphere, fixed in the sphere's
+cloud points, or one per occupied cube of ``cloud_voxel`` (:func:`thinned`); ``sphere_points`` points on each sphere, fixed in the sphere's
 frame so they move with it (``observe="surface"``), or the sphere centres only
 (``observe="centres"``; the controller adds :attr:`World.margin_extra`).
 """
@@ -66,12 +66,34 @@ class Observer:
         return np.concatenate([moving.astype(np.float32), self.static_points], axis=0)
 
 
+def thinned(points: np.ndarray, voxel: float) -> np.ndarray:
+    """One point (K, 3) of the points (P, 3) m in each occupied cube of edge ``voxel`` m of a grid
+    through the origin, in the points' order: the one nearest the centroid of the cube's points (a
+    real point, on the scanned surface, unlike the centroid at a corner)."""
+    points = np.asarray(points, np.float64)
+    _, group = np.unique(np.floor(points / voxel).astype(np.int64), axis=0, return_inverse=True)
+    group = group.ravel()
+    sizes = np.bincount(group)
+    centroid = np.zeros((len(sizes), 3))
+    np.add.at(centroid, group, points)
+    centroid /= sizes[:, None]
+    order = np.lexsort((np.sum((points - centroid[group]) ** 2, axis=1), group))
+    first = order[np.r_[True, group[order][1:] != group[order][:-1]]]
+    return points[np.sort(first)]
+
+
+def observed_cloud(points, voxel: float | None) -> np.ndarray:
+    """The observed points (K, 3) m of a cloud's points: all of them, or :func:`thinned` by ``voxel``."""
+    points = np.asarray(points, np.float64)
+    return points if voxel is None else thinned(points, voxel)
+
+
 def make_observer(world: World, key) -> Observer:
     """Draw the observation of ``world`` once (key: jax.random key or int seed).
 
     Box faces get ``round(density * area)`` uniform points each; a mesh gets
     ``round(density * area)`` points, each on a triangle drawn by area and
-    uniform on it; clouds are observed whole; spheres ("surface") get
+    uniform on it; clouds are observed whole or thinned (:func:`thinned`); spheres ("surface") get
     ``sphere_points`` uniform directions times the radius, fixed in the
     sphere's frame, or ("centres") their centres.
     """
@@ -102,7 +124,7 @@ def make_observer(world: World, key) -> Observer:
         a, b, c = tri[pick, 0], tri[pick, 1], tri[pick, 2]
         parts.append((1.0 - root) * a + root * (1.0 - ab[:, 1:]) * b + root * ab[:, 1:] * c)
     for cloud in world.clouds:
-        parts.append(np.asarray(cloud.points))
+        parts.append(observed_cloud(cloud.points, world.cloud_voxel))
     static = np.concatenate(parts) if parts else np.zeros((0, 3))
     n_spheres = len(world.spheres)
     if world.observe == "centres":

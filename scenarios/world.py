@@ -231,6 +231,8 @@ class World:
       density: observed points per square metre on box faces and mesh surfaces (> 0).
       sphere_points: observed points per sphere surface (>= 1; observe="surface").
       observe: "surface" or "centres" (sphere centres only; see :attr:`margin_extra`).
+      cloud_voxel: clouds observed one point per occupied cube of this edge, m (a dense scan
+        thinned, ``scenarios.observe.thinned``); None: every point.
     """
 
     spheres: tuple = ()
@@ -240,6 +242,7 @@ class World:
     density: float = 4.0
     sphere_points: int = 30
     observe: str = "surface"
+    cloud_voxel: float | None = None
 
     def __post_init__(self):
         for name, kind in (("spheres", MovingSphere), ("boxes", Box), ("meshes", MeshObstacle),
@@ -258,6 +261,8 @@ class World:
             raise WorldError(f"World.sphere_points must be an integer >= 1, got {self.sphere_points!r}")
         if self.observe not in OBSERVE_MODES:
             raise WorldError(f"World.observe must be one of {OBSERVE_MODES}, got {self.observe!r}")
+        if self.cloud_voxel is not None:
+            object.__setattr__(self, "cloud_voxel", _positive(self.cloud_voxel, "cloud_voxel", "World"))
 
     def scaled(self, factor: float) -> "World":
         """The world scaled by ``factor`` (> 0) about the origin (the robot's base): every position,
@@ -272,7 +277,7 @@ class World:
             boxes=tuple(Box(scale(b.centre), scale(b.size)) for b in self.boxes),
             meshes=tuple(MeshObstacle(factor * m.vertices, m.faces, m.name) for m in self.meshes),
             clouds=tuple(CloudObstacle(factor * np.asarray(c.points), c.name) for c in self.clouds),
-            density=self.density / factor**2)
+            density=self.density / factor**2, cloud_voxel=None if self.cloud_voxel is None else factor * self.cloud_voxel)
 
     @property
     def margin_extra(self) -> float:

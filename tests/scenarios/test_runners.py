@@ -22,7 +22,7 @@ from scenarios import charging, cluttered, custom, spheres
 from scenarios import episode as episode_mod
 from scenarios.cli import summary
 from scenarios.episode import Episode, EpisodeResult, EpisodeSettings
-from scenarios.observe import MAX_OBSERVED
+from scenarios.observe import MAX_OBSERVED, make_observer
 from scenarios.truth import true_min_distance
 from test_world import box_sdf_np
 
@@ -115,11 +115,25 @@ def test_custom_runner_names_a_bad_obstacle_file_or_goal(tmp_path, capsys):
                         (["--obstacles", str(cloud), "--goal", "4,0"], "4,0"),
                         (["--obstacles", str(cloud), "--goal", "4,0,4", "--density", "-1"], "-1"),
                         (["--obstacles", str(part), "--goal", "4,0,4"], "millimetres"),
-                        (["--obstacles", str(dense), "--goal", "4,0,4"], "downsample")]:
+                        (["--obstacles", str(dense), "--goal", "4,0,4"], "thin the cloud with --voxel"),
+                        (["--obstacles", str(dense), "--goal", "4,0,4", "--voxel", "1e-3"], "at --voxel 0.001"),
+                        (["--obstacles", str(part), "--goal", "4,0,4", "--voxel", "0.1"], "thins a point cloud"),
+                        (["--obstacles", str(dense), "--goal", "4,0,4", "--voxel", "0"], "voxel")]:
         assert exit_status(custom.main, argv + ["--out", str(tmp_path / "new" / "rec")]) == 2
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and named in err
     assert not (tmp_path / "new").exists()
+
+
+def test_custom_runner_observes_a_dense_cloud_thinned_and_judges_every_point(tmp_path):
+    dense = tmp_path / "scan.npy"
+    points = np.random.default_rng(1).uniform((3.0, -1.0, 0.0), (3.2, 1.0, 6.0), (MAX_OBSERVED + 1, 3))
+    np.save(dense, points)
+    scene = custom.build(EpisodeSettings("custom", 4, 0, options=(
+        ("obstacles", str(dense)), ("goal_position", "4,0,4"), ("voxel", "0.25"))))
+    assert len(scene.world.clouds[0].points) == len(points)
+    observed = make_observer(scene.world, 0).static_points
+    assert len(observed) == 8 * 24 and len(observed) == len(np.unique(np.floor(observed / 0.25), axis=0))
 
 
 def test_custom_runner_warns_of_a_goal_no_motion_reaches(tmp_path):

@@ -27,7 +27,7 @@ from ncedf.geometry import robot_signed_distance, robot_surface_points
 from ncedf.robot import RobotSpec, config_to_arc_lengths, sample_arc_lengths
 from scenarios.box_distance import box_sdf, surface_cell_bounds
 from scenarios.judge import judge_step, robot_motion_bound, substep_count
-from scenarios.observe import MAX_OBSERVED, make_observer
+from scenarios.observe import MAX_OBSERVED, make_observer, thinned
 from scenarios.obstacle_file import load_obstacle
 from scenarios.truth import DISTANCE_ERROR_BOUND, true_distances, true_distances_batch, true_min_distance
 from scenarios.world import Box, CloudObstacle, MeshObstacle, MovingSphere, World, WorldError
@@ -496,3 +496,27 @@ def test_cell_lower_bound_holds_and_is_tight(arcs, disk):
     # tight where it matters: small cells lose little
     small = np.tile(np.prod(half, axis=1) < np.quantile(np.prod(half, axis=1), 0.2), len(gaps))
     assert np.median(np.concatenate(gaps)[small]) < 0.01
+
+
+def test_a_thinned_cloud_keeps_per_occupied_voxel_the_real_point_nearest_its_centroid():
+    """Against a loop over the voxels: one point per occupied cube, the nearest to the cube's points'
+    centroid, a row of the cloud; the judge's world keeps every point, the observer the thinned ones."""
+    rng = np.random.default_rng(4)
+    points = np.concatenate([rng.uniform(-1.0, 2.0, (3000, 3)), [[0.05, 0.05, 0.05]]])  # one alone in a cube
+    voxel = 0.4
+    cubes = {}
+    for point in points:
+        cubes.setdefault(tuple(np.floor(point / voxel).astype(int)), []).append(point)
+    expected = {key: min(group, key=lambda p: np.sum((p - np.mean(group, axis=0)) ** 2))
+                for key, group in cubes.items()}
+    kept = thinned(points, voxel)
+    assert len(kept) == len(cubes)
+    for point in kept:
+        np.testing.assert_array_equal(point, expected[tuple(np.floor(point / voxel).astype(int))])
+    world = World(clouds=(CloudObstacle(points),), cloud_voxel=voxel)
+    assert len(world.clouds[0].points) == len(points)
+    np.testing.assert_array_equal(make_observer(world, 0).static_points, kept.astype(np.float32))
+    scaled = world.scaled(2.0)  # the same cubes, twice the size
+    np.testing.assert_allclose(make_observer(scaled, 0).static_points, 2.0 * kept.astype(np.float32), rtol=1e-6)
+    with pytest.raises(WorldError, match="cloud_voxel must be > 0"):
+        World(cloud_voxel=0.0)
