@@ -2,10 +2,10 @@
 
 The obstacle is read by ``scenarios.obstacle_file.load_obstacle`` (trimesh: .stl .obj
 .ply .off .glb ...; a .ply without faces, a PCL .pcd, .xyz or .npy is a bare point cloud),
-shifted by ``--offset``. Mesh surfaces are observed at ``--density`` points per
-square metre, by default the confined worlds' (``scenarios.solids.DENSITY``), at
-which an opening the robot fits through is wider than the holes between the
-samples; a cloud's points are observed as they are, or one per cube of ``--voxel`` m (a dense
+its ``--up`` axis turned to +z and shifted by ``--offset``. Mesh surfaces are observed
+at ``--density`` points per square metre, by default the confined worlds'
+(``scenarios.solids.DENSITY``), at which an opening the robot fits through is wider
+than the holes between the samples; a cloud's points are observed as they are, or one per cube of ``--voxel`` m (a dense
 scan thinned; the judge keeps every point). The robot's base is
 the origin, its first tangent +z (it starts straight up, 2 m per link). A goal that no motion
 reaches (beyond the robot's length, inside the obstacle, or too near it for the tip) is warned of.
@@ -15,7 +15,7 @@ file in millimetres is a million times too large in area).
     python -m scenarios.custom --obstacles part.stl --offset 3,0,2 --goal 4,0,4
 
 Scenario options (kept in the run's settings): obstacles (absolute path),
-goal_position, offset, density, tolerance, voxel.
+goal_position, offset, up, density, tolerance, voxel.
 
 The controller is the one every world gets (``ncedf.presets``): with
 ``--controller ours`` it closes the observed cloud's clusters where every still
@@ -35,13 +35,13 @@ from scenarios.cli import base_settings, make_parser, run_cli
 from scenarios.episode import (EpisodeSettings, GoalWarning, Scene, make_scene, option_positive, option_vector,
                                require_fixed_goal, scenario_options)
 from scenarios.observe import MAX_OBSERVED, observed_cloud
-from scenarios.obstacle_file import load_obstacle
+from scenarios.obstacle_file import UP, load_obstacle
 from scenarios.solids import DENSITY
 from scenarios.world import CloudObstacle, World
 
 TOLERANCE = 0.2
 MAX_STEPS = 300
-OPTIONS = ("obstacles", "goal_position", "offset", "density", "tolerance", "voxel")
+OPTIONS = ("obstacles", "goal_position", "offset", "up", "density", "tolerance", "voxel")
 
 
 def build(settings: EpisodeSettings) -> Scene:
@@ -56,7 +56,7 @@ def build(settings: EpisodeSettings) -> Scene:
     density = option_positive("density", options.get("density", str(DENSITY)))
     tolerance = option_positive("tolerance", options.get("tolerance", str(TOLERANCE)))
     voxel = option_positive("voxel", options["voxel"]) if "voxel" in options else None
-    obstacle = load_obstacle(options["obstacles"], offset)
+    obstacle = load_obstacle(options["obstacles"], offset, options.get("up", "z"))
     if isinstance(obstacle, CloudObstacle):
         world = World(clouds=(obstacle,), density=density, cloud_voxel=voxel)
     elif voxel is not None:
@@ -113,6 +113,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="obstacle mesh (.stl .obj .ply .glb ...) or point cloud (.pcd .ply .xyz .npy), m")
     parser.add_argument("--goal", required=True, metavar="X,Y,Z", help="goal position, m")
     parser.add_argument("--offset", default="0,0,0", metavar="X,Y,Z", help="shift of the obstacle, m (default 0,0,0)")
+    parser.add_argument("--up", choices=tuple(UP), default="z",
+                        help="the file's up axis, turned to +z before --offset (glTF: y; default z)")
     parser.add_argument("--density", default=str(DENSITY),
                         help=f"observed points per square metre of mesh surface (default {DENSITY})")
     parser.add_argument("--tolerance", default=str(TOLERANCE), help=f"goal tolerance, m (default {TOLERANCE})")
@@ -121,7 +123,7 @@ def main(argv: list[str] | None = None) -> int:
 
     def settings(args) -> EpisodeSettings:
         options = {"obstacles": str(Path(args.obstacles).resolve()), "goal_position": args.goal,
-                   "offset": args.offset, "density": args.density, "tolerance": args.tolerance}
+                   "offset": args.offset, "up": args.up, "density": args.density, "tolerance": args.tolerance}
         if args.voxel is not None:
             options["voxel"] = args.voxel
         return base_settings("custom", args, options=tuple(options.items()))

@@ -17,8 +17,15 @@ from scenarios.pcd import read_pcd
 from scenarios.world import CloudObstacle, MeshObstacle, WorldError, finite_vector
 
 
-def load_obstacle(path, offset=(0.0, 0.0, 0.0)) -> MeshObstacle | CloudObstacle:
-    """Read an obstacle from a user's file and shift it by ``offset`` (3,) m.
+#: Rotations that turn each axis a file may hold as "up" into +z (proper: a mesh keeps its winding).
+UP = {"z": np.eye(3), "-z": np.diag([1.0, -1.0, -1.0]),
+      "y": np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]]), "-y": np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]]),
+      "x": np.array([[0.0, 0, -1], [0, 1, 0], [1, 0, 0]]), "-x": np.array([[0.0, 0, 1], [0, 1, 0], [-1, 0, 0]])}
+
+
+def load_obstacle(path, offset=(0.0, 0.0, 0.0), up: str = "z") -> MeshObstacle | CloudObstacle:
+    """Read an obstacle from a user's file, turn its ``up`` axis (a key of ``UP``: glTF files are
+    +y up by their standard) to +z, and shift it by ``offset`` (3,) m.
 
     Meshes (.stl .obj .ply .off .glb ...) are read with trimesh (a scene is
     merged into one mesh) -> :class:`MeshObstacle`; a .ply without faces, a
@@ -30,6 +37,14 @@ def load_obstacle(path, offset=(0.0, 0.0, 0.0)) -> MeshObstacle | CloudObstacle:
 
     path = os.fspath(path)
     shift = np.asarray(finite_vector(offset, "offset", "load_obstacle"))
+    if up not in UP:
+        raise WorldError(f"up axis {up!r}: choose one of {', '.join(UP)}")
+    column = np.argmax(np.abs(UP[up]), axis=1)  # each turn is a signed permutation: no inf * 0 of a product
+    sign = UP[up][np.arange(3), column]
+
+    def place(points: np.ndarray) -> np.ndarray:
+        return points[:, column] * sign + shift
+
     name = os.path.basename(path)
     if not os.path.isfile(path):
         what = ("does not exist" if not os.path.exists(path) else "is a folder" if os.path.isdir(path)
@@ -40,30 +55,30 @@ def load_obstacle(path, offset=(0.0, 0.0, 0.0)) -> MeshObstacle | CloudObstacle:
     try:
         if ext == ".npy":
             points = np.load(path, allow_pickle=False)
-            return CloudObstacle(_cloud_array(points, path) + shift, name)
+            return CloudObstacle(place(_cloud_array(points, path)), name)
         if ext == ".pcd":
             points, dropped = read_pcd(path)
             if dropped:
                 warnings.warn(f"obstacle file {path!r}: dropped {dropped} invalid (NaN) points", stacklevel=2)
-            return CloudObstacle(_cloud_array(points, path) + shift, name)
+            return CloudObstacle(place(_cloud_array(points, path)), name)
         if ext == ".xyz":
             with warnings.catch_warnings():  # an empty file: the shape check below says so, on one line
                 warnings.simplefilter("ignore", UserWarning)
                 points = np.loadtxt(path, dtype=np.float64, ndmin=2, comments="#")
             if points.ndim != 2 or points.shape[1] < 3:
                 raise WorldError(f"obstacle file {path!r}: expected x y z per line, got shape {points.shape}")
-            return CloudObstacle(_cloud_array(points[:, :3], path) + shift, name)
+            return CloudObstacle(place(_cloud_array(points[:, :3], path)), name)
         loaded = trimesh.load(path, process=False)
         if isinstance(loaded, trimesh.Scene):
             if not loaded.geometry:
                 raise WorldError(f"obstacle file {path!r} holds no geometry")
             loaded = loaded.to_geometry() if hasattr(loaded, "to_geometry") else loaded.dump(concatenate=True)
         if isinstance(loaded, trimesh.PointCloud):
-            return CloudObstacle(_cloud_array(loaded.vertices, path) + shift, name)
+            return CloudObstacle(place(_cloud_array(loaded.vertices, path)), name)
         if isinstance(loaded, trimesh.Trimesh):
             if len(loaded.faces) == 0:
-                return CloudObstacle(_cloud_array(loaded.vertices, path) + shift, name)
-            return MeshObstacle(np.asarray(loaded.vertices, np.float64) + shift, np.asarray(loaded.faces), path)
+                return CloudObstacle(place(_cloud_array(loaded.vertices, path)), name)
+            return MeshObstacle(place(np.asarray(loaded.vertices, np.float64)), np.asarray(loaded.faces), path)
         raise WorldError(f"obstacle file {path!r} holds a {type(loaded).__name__}, not a mesh or point cloud")
     except WorldError as err:
         if path in str(err):

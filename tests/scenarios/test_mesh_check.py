@@ -11,7 +11,7 @@ import pytest
 import trimesh
 
 from scenarios.mesh_check import MAX_FACES, MeshWarning
-from scenarios.obstacle_file import load_obstacle
+from scenarios.obstacle_file import UP, load_obstacle
 from scenarios.world import MeshObstacle, WorldError
 
 TETRA = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n"
@@ -98,3 +98,21 @@ def test_solids_touching_at_a_face_or_an_edge_are_closed_and_their_insides_insid
     inside = mesh.index.inside(np.array([[0.5, 0.5, 0.5], [1.5, 0.5, 0.5], [2.5, 1.5, 0.5], [2.5, 0.5, 0.5],
                                          [1.5, 1.5, 0.5], [1.5, 0.5, 1.5]]))
     assert inside.tolist() == [True, True, True, False, False, False]
+
+
+def test_each_up_axis_is_turned_to_plus_z_by_a_rotation_and_a_glTF_box_stands_where_its_file_says(tmp_path):
+    for name, turn in UP.items():
+        axis = np.zeros(3)
+        axis["xyz".index(name[-1])] = -1.0 if name.startswith("-") else 1.0
+        np.testing.assert_array_equal(turn @ axis, [0.0, 0.0, 1.0])
+        assert np.allclose(turn @ turn.T, np.eye(3)) and np.linalg.det(turn) == pytest.approx(1.0)
+    # a 1 x 2 x 3 box whose file says: 5 m up (+y), 4 m towards the viewer (+z), 1 m along x
+    box = trimesh.creation.box(extents=(1.0, 3.0, 2.0)).apply_translation((1.0, 5.0, 4.0))
+    box.export(tmp_path / "crate.glb")
+    mesh = load_obstacle(tmp_path / "crate.glb", offset=(0.0, 0.0, 0.5), up="y")
+    lower, upper = mesh.vertices.min(axis=0), mesh.vertices.max(axis=0)
+    np.testing.assert_allclose((lower + upper) / 2, [1.0, -4.0, 5.5], atol=1e-6)  # +z of the file is -y here
+    np.testing.assert_allclose(upper - lower, [1.0, 2.0, 3.0], atol=1e-6)
+    assert mesh.closed and np.sum(mesh.triangles[:, 0] * np.cross(mesh.triangles[:, 1], mesh.triangles[:, 2])) > 0
+    with pytest.raises(WorldError, match="up axis 'w'"):
+        load_obstacle(tmp_path / "crate.glb", up="w")
