@@ -1,21 +1,23 @@
-"""A user's own world: one obstacle file (mesh or point cloud) and a goal position.
+"""A user's own world: obstacle files (meshes or point clouds) and a goal position.
 
-The obstacle is read by ``scenarios.obstacle_file.load_obstacle`` (trimesh: .stl .obj
-.ply .off .glb ...; a .ply without faces, a PCL .pcd, .xyz or .npy is a bare point cloud),
-its ``--up`` axis turned to +z and shifted by ``--offset``. Mesh surfaces are observed
-at ``--density`` points per square metre, by default the confined worlds'
-(``scenarios.solids.DENSITY``), at which an opening the robot fits through is wider
-than the holes between the samples; a cloud's points are observed as they are, or one per cube of ``--voxel`` m (a dense
-scan thinned; the judge keeps every point). The robot's base is
-the origin, its first tangent +z (it starts straight up, 2 m per link). A goal that no motion
-reaches (beyond the robot's length, inside the obstacle, or too near it for the tip) is warned of.
-An obstacle observed at more than ``scenarios.observe.MAX_OBSERVED`` points is refused (coordinates are metres: a
-file in millimetres is a million times too large in area).
+Each obstacle is read by ``scenarios.obstacle_file.load_obstacle`` (trimesh: .stl
+.obj .ply .off .glb ...; a .ply without faces, a PCL .pcd, .xyz or .npy is a bare
+point cloud), its ``--up`` axis turned to +z and shifted by ``--offset``. Mesh
+surfaces are observed at ``--density`` points per square metre, by default the
+confined worlds' (``scenarios.solids.DENSITY``), at which an opening the robot fits
+through is wider than the holes between the samples; a cloud's points are observed
+as they are, or one per cube of ``--voxel`` m (a dense scan thinned; the judge keeps
+every point). The robot's base is the origin, its first tangent +z (it starts
+straight up, 2 m per link). A goal that no motion reaches (beyond the robot's
+length, inside an obstacle, or too near one for the tip) is warned of. A world
+observed at more than ``scenarios.observe.MAX_OBSERVED`` points is refused
+(coordinates are metres: a file in millimetres is a million times too large in area).
 
     python -m scenarios.custom --obstacles part.stl --offset 3,0,2 --goal 4,0,4
+    python -m scenarios.custom --obstacles table.stl scan.pcd --goal 4,0,1
 
-Scenario options (kept in the run's settings): obstacles (absolute path),
-goal_position, offset, up, density, tolerance, voxel.
+Scenario options (kept in the run's settings): obstacles (absolute paths joined by
+``os.pathsep``), goal_position, offset, up, density, tolerance, voxel.
 
 The controller is the one every world gets (``ncedf.presets``): with
 ``--controller ours`` it closes the observed cloud's clusters where every still
@@ -25,6 +27,7 @@ where one is not.
 
 from __future__ import annotations
 
+import os
 import warnings
 from pathlib import Path
 
@@ -56,48 +59,48 @@ def build(settings: EpisodeSettings) -> Scene:
     density = option_positive("density", options.get("density", str(DENSITY)))
     tolerance = option_positive("tolerance", options.get("tolerance", str(TOLERANCE)))
     voxel = option_positive("voxel", options["voxel"]) if "voxel" in options else None
-    obstacle = load_obstacle(options["obstacles"], offset, options.get("up", "z"))
-    if isinstance(obstacle, CloudObstacle):
-        world = World(clouds=(obstacle,), density=density, cloud_voxel=voxel)
-    elif voxel is not None:
-        raise ValueError(f"{options['obstacles']}: --voxel thins a point cloud; a mesh is observed at --density")
-    else:
-        world = World(meshes=(obstacle,), density=density)
-    check_observed_count(obstacle, world, options["obstacles"])
+    paths = options["obstacles"].split(os.pathsep)
+    world = load_world(paths, offset, options.get("up", "z"), density, voxel)
     scene = make_scene(settings, world, goal, tolerance, MAX_STEPS)
     warn_of_the_goal(scene, options["goal_position"])
     return scene
 
 
-def check_observed_count(obstacle, world: World, named: str) -> None:
-    """ValueError where the obstacle would be observed at more than ``MAX_OBSERVED`` points: a cloud's
-    own points (or one per voxel), or a mesh's area times the world's density (a file in millimetres
-    read as metres is a million times too large)."""
-    density = world.density
-    if isinstance(obstacle, CloudObstacle):
-        count = len(observed_cloud(obstacle.points, world.cloud_voxel))
-        if count > MAX_OBSERVED:
-            thinned = "" if world.cloud_voxel is None else f" at --voxel {world.cloud_voxel:g}"
-            raise ValueError(f"{named}: {count} points{thinned}, more than the {MAX_OBSERVED} a world may be observed "
-                             "at: thin the cloud with --voxel V (one point per cube of V m)")
-        return
-    count = obstacle.area * density  # in floats: a huge density overflows an int
-    if count > MAX_OBSERVED:
-        raise ValueError(f"{named}: {obstacle.area:.4g} m^2 of surface at {density:g} points per m^2 is {count:.4g} "
+def load_world(paths: list[str], offset, up: str, density: float, voxel: float | None) -> World:
+    """The world of the obstacle files (``load_obstacle`` with ``offset`` and ``up`` each), observed
+    at ``density`` (meshes) and ``voxel`` (clouds); ValueError where ``voxel`` has no cloud to thin or
+    the world would be observed at more than ``MAX_OBSERVED`` points (a file in millimetres read as
+    metres is a million times too large in area)."""
+    obstacles = [load_obstacle(path, offset, up) for path in paths]
+    clouds = tuple(o for o in obstacles if isinstance(o, CloudObstacle))
+    world = World(meshes=tuple(o for o in obstacles if not isinstance(o, CloudObstacle)), clouds=clouds,
+                  density=density, cloud_voxel=voxel)
+    named = ", ".join(paths)
+    if voxel is not None and not clouds:
+        raise ValueError(f"{named}: --voxel thins a point cloud; a mesh is observed at --density")
+    area = sum(mesh.area for mesh in world.meshes)
+    if area * density > MAX_OBSERVED:  # in floats: a huge density overflows an int
+        raise ValueError(f"{named}: {area:.4g} m^2 of surface at {density:g} points per m^2 is {area * density:.4g} "
                          f"observed points, more than {MAX_OBSERVED}: coordinates are read as metres (is the file "
                          "in millimetres?); else lower --density")
+    points = sum(len(observed_cloud(cloud.points, voxel)) for cloud in clouds)
+    if points + area * density > MAX_OBSERVED:
+        thinned = "" if voxel is None else f" at --voxel {voxel:g}"
+        raise ValueError(f"{named}: {points} cloud points{thinned} and {area * density:.0f} on the meshes, more than "
+                         f"the {MAX_OBSERVED} a world may be observed at: thin the cloud with --voxel V (one point "
+                         "per cube of V m)")
+    return world
 
 
 def warn_of_the_goal(scene: Scene, named: str) -> None:
-    """Warn of a goal (``named`` as the user gave it) that no motion reaches: inside the (closed)
-    obstacle, or nearer to it than the tip's radius less the goal tolerance (the tip's end disk would
+    """Warn of a goal (``named`` as the user gave it) that no motion reaches: inside a (closed)
+    obstacle, or nearer to one than the tip's radius less the goal tolerance (the tip's end disk would
     touch it); ``make_scene`` warns of one beyond the robot's length."""
     goal = scene.goal[None]
-    if scene.world.clouds:
-        inside, near = False, float(np.linalg.norm(np.asarray(scene.world.clouds[0].points) - goal, axis=-1).min())
-    else:
-        mesh = scene.world.meshes[0]
-        inside, near = mesh.closed and bool(mesh.index.inside(goal)[0]), float(mesh.index.distance(goal)[0][0])
+    meshes = scene.world.meshes
+    inside = any(mesh.closed and bool(mesh.index.inside(goal)[0]) for mesh in meshes)
+    near = min([float(np.linalg.norm(np.asarray(cloud.points) - goal, axis=-1).min()) for cloud in scene.world.clouds]
+               + [float(mesh.index.distance(goal)[0][0]) for mesh in meshes])
     tip = float(np.atleast_1d(scene.spec.radius)[-1])
     if inside:
         warnings.warn(GoalWarning(f"the goal {named} lies inside the obstacle: it cannot be reached"), stacklevel=3)
@@ -109,8 +112,9 @@ def warn_of_the_goal(scene: Scene, named: str) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = make_parser("custom", __doc__, max_steps=MAX_STEPS)
-    parser.add_argument("--obstacles", required=True, type=path_text, metavar="FILE",
-                        help="obstacle mesh (.stl .obj .ply .glb ...) or point cloud (.pcd .ply .xyz .npy), m")
+    parser.add_argument("--obstacles", required=True, type=path_text, metavar="FILE", nargs="+",
+                        help="obstacle meshes (.stl .obj .ply .glb ...) or point clouds (.pcd .ply .xyz .npy), m, "
+                             "one or more")
     parser.add_argument("--goal", required=True, metavar="X,Y,Z", help="goal position, m")
     parser.add_argument("--offset", default="0,0,0", metavar="X,Y,Z", help="shift of the obstacle, m (default 0,0,0)")
     parser.add_argument("--up", choices=tuple(UP), default="z",
@@ -122,7 +126,7 @@ def main(argv: list[str] | None = None) -> int:
                                                      "scan (default: every point)")
 
     def settings(args) -> EpisodeSettings:
-        options = {"obstacles": str(Path(args.obstacles).resolve()), "goal_position": args.goal,
+        options = {"obstacles": os.pathsep.join(str(Path(path).resolve()) for path in args.obstacles), "goal_position": args.goal,
                    "offset": args.offset, "up": args.up, "density": args.density, "tolerance": args.tolerance}
         if args.voxel is not None:
             options["voxel"] = args.voxel

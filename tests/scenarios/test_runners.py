@@ -136,6 +136,32 @@ def test_custom_runner_observes_a_dense_cloud_thinned_and_judges_every_point(tmp
     assert len(observed) == 8 * 24 and len(observed) == len(np.unique(np.floor(observed / 0.25), axis=0))
 
 
+def test_custom_runner_takes_several_files_meshes_and_clouds_together(tmp_path, capsys):
+    """A table (a closed box) and a scanned cloud: both in the world and the observation; the goal
+    warned of inside the one and near the other; a stored run's options name both files."""
+    table, scan = tmp_path / "table.stl", tmp_path / "scan.xyz"
+    trimesh.creation.box(bounds=[(2.0, -1.0, 0.0), (3.0, 1.0, 1.0)]).export(table)  # 10 m^2 of surface
+    np.savetxt(scan, [[4.0, 0.0, 4.0], [4.0, 0.5, 4.0]])
+    options = (("obstacles", os.pathsep.join([str(table), str(scan)])), ("density", "10"), ("tolerance", "0.1"))
+
+    def build(goal: str):
+        return custom.build(EpisodeSettings("custom", 4, 0, options=(*options, ("goal_position", goal))))
+
+    scene = build("4,0,2")
+    assert len(scene.world.meshes) == 1 and len(scene.world.clouds) == 1
+    assert len(make_observer(scene.world, 0).static_points) == 100 + 2
+    with pytest.warns(UserWarning, match="inside the obstacle"):
+        build("2.5,0,0.5")
+    with pytest.warns(UserWarning, match="0.05 m from the obstacle"):
+        build("4,0.5,4.05")
+    out = tmp_path / "rec"
+    argv = ["--obstacles", str(table), str(scan), "--goal", "4,0,2", "--voxel", "0.1", "--max-steps", "1"]
+    assert exit_status(custom.main, argv + ["--out", str(out), "--formats", "mcap"]) == 0
+    run = load_run(out.with_suffix(".mcap"))
+    assert ["obstacles", os.pathsep.join([str(table), str(scan)])] in run.meta["settings"]["options"]
+    assert run.meta["world"]["cloud_voxel"] == 0.1 and len(run.meta["world"]["meshes"]) == 1
+
+
 def test_custom_runner_warns_of_a_goal_no_motion_reaches(tmp_path):
     """Beyond the robot's length (8 m with 4 links, plus the tolerance), inside a closed mesh, or too near
     a point for the tip's radius (0.2 m) less the tolerance; none for goals that pass each test."""
