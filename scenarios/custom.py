@@ -116,9 +116,11 @@ def main(argv: list[str] | None = None) -> int:
                         help="obstacle meshes (.stl .obj .ply .glb ...) or point clouds (.pcd .ply .xyz .npy), m, "
                              "one or more")
     parser.add_argument("--goal", required=True, metavar="X,Y,Z", help="goal position, m")
-    parser.add_argument("--offset", default="0,0,0", metavar="X,Y,Z", help="shift of the obstacle, m (default 0,0,0)")
+    parser.add_argument("--offset", default="0,0,0", metavar="X,Y,Z",
+                        help="shift of the obstacles, m (default 0,0,0)")
     parser.add_argument("--up", choices=tuple(UP), default="z",
-                        help="the file's up axis, turned to +z before --offset (glTF: y; default z)")
+                        help="the files' up axis, turned to +z before --offset (glTF: y; a negative one as "
+                             "--up=-y; default z)")
     parser.add_argument("--density", default=str(DENSITY),
                         help=f"observed points per square metre of mesh surface (default {DENSITY})")
     parser.add_argument("--tolerance", default=str(TOLERANCE), help=f"goal tolerance, m (default {TOLERANCE})")
@@ -126,8 +128,13 @@ def main(argv: list[str] | None = None) -> int:
                                                      "scan (default: every point)")
 
     def settings(args) -> EpisodeSettings:
-        options = {"obstacles": os.pathsep.join(str(Path(path).resolve()) for path in args.obstacles), "goal_position": args.goal,
-                   "offset": args.offset, "up": args.up, "density": args.density, "tolerance": args.tolerance}
+        paths = [str(Path(path).resolve()) for path in args.obstacles]
+        joined = [path for path in paths if os.pathsep in path]
+        if joined:
+            raise ValueError(f"obstacle file {joined[0]!r}: a path with {os.pathsep!r} cannot be kept in the run's "
+                             "settings, which join the files' paths with it; rename it")
+        options = {"obstacles": os.pathsep.join(paths), "goal_position": args.goal, "offset": args.offset,
+                   "up": args.up, "density": args.density, "tolerance": args.tolerance}
         if args.voxel is not None:
             options["voxel"] = args.voxel
         return base_settings("custom", args, options=tuple(options.items()))

@@ -3,9 +3,10 @@
 Box faces get ``round(density * area)`` uniform points each; a mesh gets
 ``round(density * area)`` points over its surface, triangles drawn by area and
 points uniform on them (linear in the face count: fast for 10^6 faces); all
-cloud points, or one per occupied cube of ``cloud_voxel`` (:func:`thinned`); ``sphere_points`` points on each sphere, fixed in the sphere's
-frame so they move with it (``observe="surface"``), or the sphere centres only
-(``observe="centres"``; the controller adds :attr:`World.margin_extra`).
+cloud points, or one per occupied cube of ``cloud_voxel`` (:func:`thinned`);
+``sphere_points`` points on each sphere, fixed in the sphere's frame so they move
+with it (``observe="surface"``), or the sphere centres only (``observe="centres"``;
+the controller adds :attr:`World.margin_extra`).
 """
 
 from __future__ import annotations
@@ -69,8 +70,13 @@ class Observer:
 def thinned(points: np.ndarray, voxel: float) -> np.ndarray:
     """One point (K, 3) of the points (P, 3) m in each occupied cube of edge ``voxel`` m of a grid
     through the origin, in the points' order: the one nearest the centroid of the cube's points (a
-    real point, on the scanned surface, unlike the centroid at a corner)."""
-    points = np.asarray(points, np.float64)
+    real point, on the scanned surface, unlike the centroid at a corner; a tie goes to the first);
+    ValueError for a voxel too small to index the cubes."""
+    points = np.asarray(points, np.float64).reshape(-1, 3)
+    if len(points) == 0:
+        return points
+    if np.max(np.abs(points)) / voxel >= 2.0**52:  # cube indices past float64's integers would merge cubes
+        raise ValueError(f"voxel {voxel:g} m is too small for coordinates up to {np.max(np.abs(points)):g} m")
     _, group = np.unique(np.floor(points / voxel).astype(np.int64), axis=0, return_inverse=True)
     group = group.ravel()
     sizes = np.bincount(group)

@@ -59,7 +59,8 @@ def load_obstacle(path, offset=(0.0, 0.0, 0.0), up: str = "z") -> MeshObstacle |
         if ext == ".pcd":
             points, dropped = read_pcd(path)
             if dropped:
-                warnings.warn(f"obstacle file {path!r}: dropped {dropped} invalid (NaN) points", stacklevel=2)
+                warnings.warn(f"obstacle file {path!r}: dropped {dropped} invalid (NaN or infinite) points",
+                              stacklevel=2)
             return CloudObstacle(place(_cloud_array(points, path)), name)
         if ext == ".xyz":
             with warnings.catch_warnings():  # an empty file: the shape check below says so, on one line
@@ -96,7 +97,6 @@ def _cloud_array(points, path: str) -> np.ndarray:
     if not np.all(np.isfinite(arr)):
         raise WorldError(f"obstacle file {path!r} contains NaN or inf coordinates")
     return arr
-
 
 
 def _check_declared_faces(path: str, ext: str) -> None:

@@ -23,6 +23,8 @@ def read_pcd(path: str) -> tuple[np.ndarray, int]:
     if not {"x", "y", "z"} <= set(cloud.fields):
         raise ValueError(f"no x, y, z among the fields {' '.join(cloud.fields)}")
     xyz = np.asarray(cloud.numpy(("x", "y", "z")), np.float64).reshape(-1, 3)
+    if len(xyz) != cloud.metadata.points:
+        raise ValueError(f"its header says POINTS {cloud.metadata.points}, its data holds {len(xyz)} (a cut file?)")
     finite = np.all(np.isfinite(xyz), axis=1)
     return xyz[finite], int(len(xyz) - finite.sum())
 

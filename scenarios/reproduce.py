@@ -220,7 +220,8 @@ def mppi_step_ms(model, points, budget: Budget, seed: int = 0, shape: str = "nce
     spec = RobotSpec(links)
     config = preset("paper", spec, Observation(len(points)), samples=budget.timing.samples,
                     horizon=budget.timing.horizon)
-    mppi = Controller(spec, make_shape(shape, spec, model=model) if shape == "ncedf" else make_shape(shape, spec), config)
+    mppi = Controller(spec, make_shape(shape, spec, model=model) if shape == "ncedf" else make_shape(shape, spec),
+                      config)
     state = mppi.init(jax.random.PRNGKey(seed))
     arc = jnp.asarray(spec.straight_state(), jnp.float32)
     goal = jnp.asarray(GOAL, jnp.float32)
@@ -432,7 +433,8 @@ def parse_args(argv=None):
     p.add_argument("--quick", action="store_true",
                    help="a smoke-sized version of every experiment (a fraction of the time)")
     p.add_argument("--epochs", type=positive, help=f"training epochs per network (default {PAPER_EPOCHS}, quick 1)")
-    p.add_argument("--envs", type=positive, help=f"Table III environments per representation (default {EpisodeBudget.envs})")
+    p.add_argument("--envs", type=positive,
+                   help=f"Table III environments per representation (default {EpisodeBudget.envs})")
     p.add_argument("--envs-5000", type=positive, metavar="N",
                    help=f"Table III environments for pointcloud:5000 (default {EpisodeBudget.envs_5000})")
     p.add_argument("--seeds", type=positive, help=f"Table IV controller seeds (default {EpisodeBudget.seeds})")

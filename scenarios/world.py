@@ -277,7 +277,8 @@ class World:
             boxes=tuple(Box(scale(b.centre), scale(b.size)) for b in self.boxes),
             meshes=tuple(MeshObstacle(factor * m.vertices, m.faces, m.name) for m in self.meshes),
             clouds=tuple(CloudObstacle(factor * np.asarray(c.points), c.name) for c in self.clouds),
-            density=self.density / factor**2, cloud_voxel=None if self.cloud_voxel is None else factor * self.cloud_voxel)
+            density=self.density / factor**2,
+            cloud_voxel=None if self.cloud_voxel is None else factor * self.cloud_voxel)
 
     @property
     def margin_extra(self) -> float:

@@ -47,8 +47,8 @@ def test_a_binary_cloud_of_mixed_field_types_in_any_field_order(tmp_path):
     (lambda raw: raw[:-5], "cannot read obstacle file"),
     (lambda raw: raw.replace(b"FIELDS x y z\n", b"FIELDS a b c\n"), "no x, y, z among the fields a b c"),
     (lambda raw: raw.replace(b"SIZE 4 4 4\n", b""), "header SIZE"),
-    (lambda raw: raw.replace(b"DATA binary", b"DATA binary_compressed"), "cannot read obstacle file"),
-    (lambda raw: raw.replace(b"DATA binary\n", b""), "cannot read obstacle file"),
+    (lambda raw: raw.replace(b"DATA binary", b"DATA binary_compressed"), "compressed"),
+    (lambda raw: raw.replace(b"DATA binary\n", b""), "header is not text"),
 ])
 def test_a_bad_pcd_is_one_line_naming_the_file_and_the_problem(tmp_path, change, problem):
     path = tmp_path / "bad.pcd"
@@ -57,6 +57,17 @@ def test_a_bad_pcd_is_one_line_naming_the_file_and_the_problem(tmp_path, change,
     with pytest.raises(WorldError) as err:
         load_obstacle(path)
     assert "bad.pcd" in str(err.value) and problem in str(err.value) and "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize("data", ["ascii", "binary"])
+def test_a_file_cut_short_is_refused(tmp_path, data):
+    """Four whole points where the header says five (a copy cut off, a record lost)."""
+    path = tmp_path / "cut.pcd"
+    body = ("\n".join(" ".join(map(str, p)) for p in XYZ[[0, 1, 2, 0]]) + "\n").encode() if data == "ascii" else \
+        b"".join(struct.pack("<3f", *p) for p in XYZ[[0, 1, 2, 0]])
+    path.write_bytes(header(["x", "y", "z"], [4, 4, 4], "FFF", [1, 1, 1], 5, data) + body)
+    with pytest.raises(WorldError, match="POINTS 5, its data holds 4"):
+        load_obstacle(path)
 
 
 def test_a_cloud_of_invalid_points_only_is_refused(tmp_path):

@@ -118,7 +118,10 @@ def test_custom_runner_names_a_bad_obstacle_file_or_goal(tmp_path, capsys):
                         (["--obstacles", str(dense), "--goal", "4,0,4"], "thin the cloud with --voxel"),
                         (["--obstacles", str(dense), "--goal", "4,0,4", "--voxel", "1e-3"], "at --voxel 0.001"),
                         (["--obstacles", str(part), "--goal", "4,0,4", "--voxel", "0.1"], "thins a point cloud"),
-                        (["--obstacles", str(dense), "--goal", "4,0,4", "--voxel", "0"], "voxel")]:
+                        (["--obstacles", str(dense), "--goal", "4,0,4", "--voxel", "0"], "voxel"),
+                        (["--obstacles", str(dense), "--goal", "4,0,4", "--voxel", "1e-300"], "too small"),
+                        (["--obstacles", str(tmp_path / "a:b.npy"), "--goal", "4,0,4"], "a:b.npy"),
+                        (["--obstacles", str(cloud), "--goal", "4,0", "--up=-y"], "4,0")]:  # a negative axis parsed
         assert exit_status(custom.main, argv + ["--out", str(tmp_path / "new" / "rec")]) == 2
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and named in err
