@@ -30,8 +30,9 @@ def load_obstacle(path, offset=(0.0, 0.0, 0.0), up: str = "z") -> MeshObstacle |
     Meshes (.stl .obj .ply .off .glb ...) are read with trimesh (a scene is
     merged into one mesh) -> :class:`MeshObstacle`; a .ply without faces, a
     PCL .pcd (``scenarios.pcd``), an .xyz text file (x y z per line, extra
-    columns ignored) or a .npy (P, 3) array -> :class:`CloudObstacle`. Raises
-    :class:`WorldError` naming the file.
+    columns ignored) or a .npy (P, 3) array -> :class:`CloudObstacle`, its
+    points with a NaN or infinite coordinate (a scanner's invalid returns)
+    dropped with a warning. Raises :class:`WorldError` naming the file.
     """
     import trimesh
 
@@ -57,11 +58,7 @@ def load_obstacle(path, offset=(0.0, 0.0, 0.0), up: str = "z") -> MeshObstacle |
             points = np.load(path, allow_pickle=False)
             return CloudObstacle(place(_cloud_array(points, path)), name)
         if ext == ".pcd":
-            points, dropped = read_pcd(path)
-            if dropped:
-                warnings.warn(f"obstacle file {path!r}: dropped {dropped} invalid (NaN or infinite) points",
-                              stacklevel=2)
-            return CloudObstacle(place(_cloud_array(points, path)), name)
+            return CloudObstacle(place(_cloud_array(read_pcd(path), path)), name)
         if ext == ".xyz":
             with warnings.catch_warnings():  # an empty file: the shape check below says so, on one line
                 warnings.simplefilter("ignore", UserWarning)
@@ -94,8 +91,13 @@ def _cloud_array(points, path: str) -> np.ndarray:
     arr = np.asarray(points, dtype=np.float64)
     if arr.ndim != 2 or arr.shape[1] != 3 or len(arr) == 0:
         raise WorldError(f"obstacle file {path!r}: expected (N, 3) points with N >= 1, got shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise WorldError(f"obstacle file {path!r} contains NaN or inf coordinates")
+    finite = np.all(np.isfinite(arr), axis=1)
+    if not finite.all():  # a scanner's invalid returns (an organized cloud's pixels without one)
+        warnings.warn(f"obstacle file {path!r}: dropped {int((~finite).sum())} invalid (NaN or infinite) points",
+                      stacklevel=3)
+        arr = arr[finite]
+    if len(arr) == 0:
+        raise WorldError(f"obstacle file {path!r} holds no point with finite coordinates")
     return arr
 
 

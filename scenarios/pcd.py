@@ -2,8 +2,8 @@
 
 Every data kind of the format is read (ascii, binary, binary_compressed). Only the fields x, y, z
 are kept, in metres, as written (VIEWPOINT is the sensor's pose, which PCL's reader does not apply
-either). Points with a NaN or infinite coordinate are the format's invalid points (an organized
-cloud's pixels without a return) and are dropped.
+either). Points with a NaN coordinate are the format's invalid points (an organized cloud's pixels
+without a return); ``scenarios.obstacle_file`` drops them.
 """
 
 from __future__ import annotations
@@ -11,9 +11,9 @@ from __future__ import annotations
 import numpy as np
 
 
-def read_pcd(path: str) -> tuple[np.ndarray, int]:
-    """The finite points (P, 3) float64 m of a .pcd file, and how many invalid (NaN) points were
-    dropped; ValueError saying what is wrong with the file (the reader's own first line else)."""
+def read_pcd(path: str) -> np.ndarray:
+    """The points (P, 3) float64 m of a .pcd file, invalid ones (NaN) included; ValueError saying
+    what is wrong with the file (the reader's own first line else)."""
     from pypcd4 import PointCloud
 
     try:
@@ -25,8 +25,7 @@ def read_pcd(path: str) -> tuple[np.ndarray, int]:
     xyz = np.asarray(cloud.numpy(("x", "y", "z")), np.float64).reshape(-1, 3)
     if len(xyz) != cloud.metadata.points:
         raise ValueError(f"its header says POINTS {cloud.metadata.points}, its data holds {len(xyz)} (a cut file?)")
-    finite = np.all(np.isfinite(xyz), axis=1)
-    return xyz[finite], int(len(xyz) - finite.sum())
+    return xyz
 
 
 def _reason(err: Exception) -> str:

@@ -73,8 +73,18 @@ def test_a_file_cut_short_is_refused(tmp_path, data):
 def test_a_cloud_of_invalid_points_only_is_refused(tmp_path):
     path = tmp_path / "empty.pcd"
     path.write_bytes(header(["x", "y", "z"], [4, 4, 4], "FFF", [1, 1, 1], 2, "ascii") + b"nan nan nan\nnan 0 0\n")
-    with pytest.warns(UserWarning, match="dropped 2"), pytest.raises(WorldError, match="N >= 1"):
+    with pytest.warns(UserWarning, match="dropped 2"), pytest.raises(WorldError, match="no point with finite"):
         load_obstacle(path)
+
+
+def test_every_cloud_format_drops_its_invalid_points_with_one_warning(tmp_path):
+    """A .npy and an .xyz of a depth image's organized cloud: pixels without a return are NaN."""
+    rows = np.vstack([XYZ[:1], [[np.nan, np.nan, np.nan]], XYZ[1:], [[np.inf, 0.0, 1.0]]])
+    np.save(tmp_path / "depth.npy", rows)
+    np.savetxt(tmp_path / "depth.xyz", rows)
+    for name in ("depth.npy", "depth.xyz"):
+        with pytest.warns(UserWarning, match=f"{name}': dropped 2 invalid"):
+            np.testing.assert_array_equal(load_obstacle(tmp_path / name).points, XYZ)
 
 
 def literals(data: bytes) -> bytes:
