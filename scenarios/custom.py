@@ -113,14 +113,13 @@ def warn_of_the_goal(scene: Scene, named: str) -> None:
 def main(argv: list[str] | None = None) -> int:
     parser = make_parser("custom", __doc__, max_steps=MAX_STEPS)
     parser.add_argument("--obstacles", required=True, type=path_text, metavar="FILE", nargs="+",
-                        help="obstacle meshes (.stl .obj .ply .glb ...) or point clouds (.pcd .ply .xyz .npy), m, "
-                             "one or more")
+                        help="obstacle meshes or point clouds, m (one file or more)")
     parser.add_argument("--goal", required=True, metavar="X,Y,Z", help="goal position, m")
     parser.add_argument("--offset", default="0,0,0", metavar="X,Y,Z",
                         help="shift of the obstacles, m (default 0,0,0)")
-    parser.add_argument("--up", choices=tuple(UP), default="z",
-                        help="the files' up axis, turned to +z before --offset (glTF: y; a negative one as "
-                             "--up=-y; default z)")
+    parser.add_argument("--up", choices=tuple(UP), default="z", metavar="AXIS",
+                        help=f"the files' up axis, turned to +z: {', '.join(UP)} (glTF: y; type a negative one "
+                             "as --up=-y; default z)")
     parser.add_argument("--density", default=str(DENSITY),
                         help=f"observed points per square metre of mesh surface (default {DENSITY})")
     parser.add_argument("--tolerance", default=str(TOLERANCE), help=f"goal tolerance, m (default {TOLERANCE})")

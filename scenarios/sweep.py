@@ -708,8 +708,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     ep.add_argument("--model", type=path_text,
                     help="N-CEDF weights: the robot's links and its network (default: the shipped model)")
     ep.add_argument("--option", type=_option, action="append", default=[], metavar="KEY=VALUE",
-                    help="scenario option, repeatable (e.g. custom: obstacles=FILE, or several joined by "
-                         f"{os.pathsep!r}; absolute paths for Ray)")
+                    help=f"scenario option, repeatable (e.g. custom: obstacles=FILE[{os.pathsep}FILE...], "
+                         "absolute paths for Ray)")
     run = p.add_argument_group("running")
     run.add_argument("--out", required=True, type=path_text, help="folder of the recordings")
     run.add_argument("--formats", type=_csv(str, "formats"), default=DEFAULT_FORMATS,
