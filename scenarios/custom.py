@@ -1,23 +1,23 @@
 """A user's own world: obstacle files (meshes or point clouds) and a goal position.
 
-Each obstacle is read by ``scenarios.obstacle_file.load_obstacle`` (trimesh: .stl
-.obj .ply .off .glb ...; a .ply without faces, a PCL .pcd, .xyz or .npy is a bare
-point cloud), its ``--up`` axis turned to +z and shifted by ``--offset``. Mesh
-surfaces are observed at ``--density`` points per square metre, by default the
-confined worlds' (``scenarios.solids.DENSITY``), at which an opening the robot fits
-through is wider than the holes between the samples; a cloud's points are observed
-as they are, or one per cube of ``--voxel`` m (a dense scan thinned; the judge keeps
-every point). The robot's base is the origin, its first tangent +z (it starts
-straight up, 2 m per link). A goal that no motion reaches (beyond the robot's
-length, inside an obstacle, or too near one for the tip) is warned of. A world
-observed at more than ``scenarios.observe.MAX_OBSERVED`` points is refused
-(coordinates are metres: a file in millimetres is a million times too large in area).
+Each obstacle is read by ``scenarios.obstacle_file.load_obstacle`` (trimesh: .stl .obj
+.ply .off .glb ...; a .ply without faces, a PCL .pcd, .xyz or .npy is a bare point
+cloud), its ``--up`` axis (one for all files, or one each) turned to +z and shifted by
+``--offset``. Mesh surfaces are observed at ``--density`` points per square metre, by
+default the confined worlds' (``scenarios.solids.DENSITY``), at which an opening the
+robot fits through is wider than the holes between the samples; a cloud's points are
+observed as they are, or one per cube of ``--voxel`` m (a dense scan thinned; the judge
+keeps every point). The robot's base is the origin, its first tangent +z (it starts
+straight up, 2 m per link). A goal that no motion reaches (beyond the robot's length,
+inside an obstacle, or too near one for the tip) is warned of. A world observed at more
+than ``scenarios.observe.MAX_OBSERVED`` points is refused (coordinates are metres: a
+file in millimetres is a million times too large in area).
 
     python -m scenarios.custom --obstacles part.stl --offset 3,0,2 --goal 4,0,4
-    python -m scenarios.custom --obstacles table.stl scan.pcd --goal 4,0,1
+    python -m scenarios.custom --obstacles table.glb scan.pcd --up y z --goal 4,0,1
 
 Scenario options (kept in the run's settings): obstacles (absolute paths joined by
-``os.pathsep``), goal_position, offset, up, density, tolerance, voxel.
+``os.pathsep``), goal_position, offset, up (axes joined by commas), density, tolerance, voxel.
 
 The controller is the one every world gets (``ncedf.presets``): with
 ``--controller ours`` it closes the observed cloud's clusters where every still
@@ -60,18 +60,22 @@ def build(settings: EpisodeSettings) -> Scene:
     tolerance = option_positive("tolerance", options.get("tolerance", str(TOLERANCE)))
     voxel = option_positive("voxel", options["voxel"]) if "voxel" in options else None
     paths = options["obstacles"].split(os.pathsep)
-    world = load_world(paths, offset, options.get("up", "z"), density, voxel)
+    ups = options.get("up", "z").split(",")
+    if len(ups) not in (1, len(paths)):
+        raise ValueError(f"up {options['up']!r}: {len(ups)} axes for {len(paths)} obstacle files; give one for "
+                         "every file or one per file")
+    world = load_world(paths, offset, ups * (len(paths) // len(ups)), density, voxel)
     scene = make_scene(settings, world, goal, tolerance, MAX_STEPS)
     warn_of_the_goal(scene, options["goal_position"])
     return scene
 
 
-def load_world(paths: list[str], offset, up: str, density: float, voxel: float | None) -> World:
-    """The world of the obstacle files (``load_obstacle`` with ``offset`` and ``up`` each), observed
+def load_world(paths: list[str], offset, ups: list[str], density: float, voxel: float | None) -> World:
+    """The world of the obstacle files (``load_obstacle`` with ``offset`` and its up axis), observed
     at ``density`` (meshes) and ``voxel`` (clouds); ValueError where ``voxel`` has no cloud to thin or
     the world would be observed at more than ``MAX_OBSERVED`` points (a file in millimetres read as
     metres is a million times too large in area)."""
-    obstacles = [load_obstacle(path, offset, up) for path in paths]
+    obstacles = [load_obstacle(path, offset, up) for path, up in zip(paths, ups)]
     clouds = tuple(o for o in obstacles if isinstance(o, CloudObstacle))
     world = World(meshes=tuple(o for o in obstacles if not isinstance(o, CloudObstacle)), clouds=clouds,
                   density=density, cloud_voxel=voxel)
@@ -117,9 +121,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--goal", required=True, metavar="X,Y,Z", help="goal position, m")
     parser.add_argument("--offset", default="0,0,0", metavar="X,Y,Z",
                         help="shift of the obstacles, m (default 0,0,0)")
-    parser.add_argument("--up", choices=tuple(UP), default="z", metavar="AXIS",
-                        help=f"the files' up axis, turned to +z: {', '.join(UP)} (glTF: y; type a negative one "
-                             "as --up=-y; default z)")
+    parser.add_argument("--up", choices=tuple(UP), default=["z"], metavar="AXIS", nargs="+",
+                        help=f"up axis turned to +z, of every file or of each: {', '.join(UP)} (glTF: y; "
+                             "default z)")
     parser.add_argument("--density", default=str(DENSITY),
                         help=f"observed points per square metre of mesh surface (default {DENSITY})")
     parser.add_argument("--tolerance", default=str(TOLERANCE), help=f"goal tolerance, m (default {TOLERANCE})")
@@ -133,7 +137,7 @@ def main(argv: list[str] | None = None) -> int:
             raise ValueError(f"obstacle file {joined[0]!r}: a path with {os.pathsep!r} cannot be kept in the run's "
                              "settings, which join the files' paths with it; rename it")
         options = {"obstacles": os.pathsep.join(paths), "goal_position": args.goal, "offset": args.offset,
-                   "up": args.up, "density": args.density, "tolerance": args.tolerance}
+                   "up": ",".join(args.up), "density": args.density, "tolerance": args.tolerance}
         if args.voxel is not None:
             options["voxel"] = args.voxel
         return base_settings("custom", args, options=tuple(options.items()))

@@ -140,28 +140,39 @@ def test_custom_runner_observes_a_dense_cloud_thinned_and_judges_every_point(tmp
 
 
 def test_custom_runner_takes_several_files_meshes_and_clouds_together(tmp_path, capsys):
-    """A table (a closed box) and a scanned cloud: both in the world and the observation; the goal
-    warned of inside the one and near the other; a stored run's options name both files."""
-    table, scan = tmp_path / "table.stl", tmp_path / "scan.xyz"
-    trimesh.creation.box(bounds=[(2.0, -1.0, 0.0), (3.0, 1.0, 1.0)]).export(table)  # 10 m^2 of surface
+    """A table (a closed box, written +y up as glTF says) and a scanned cloud (+z up): both in the
+    world, each turned by its own up axis, and in the observation; the goal warned of inside the one
+    and near the other; a stored run's options name both files and both axes."""
+    table, scan = tmp_path / "table.glb", tmp_path / "scan.xyz"
+    trimesh.creation.box(bounds=[(2.0, 0.0, -1.0), (3.0, 1.0, 1.0)]).export(table)  # 10 m^2 of surface
     np.savetxt(scan, [[4.0, 0.0, 4.0], [4.0, 0.5, 4.0]])
-    options = (("obstacles", os.pathsep.join([str(table), str(scan)])), ("density", "10"), ("tolerance", "0.1"))
+    options = (("obstacles", os.pathsep.join([str(table), str(scan)])), ("density", "10"), ("tolerance", "0.1"),
+               ("up", "y,z"))
 
     def build(goal: str):
         return custom.build(EpisodeSettings("custom", 4, 0, options=(*options, ("goal_position", goal))))
 
     scene = build("4,0,2")
     assert len(scene.world.meshes) == 1 and len(scene.world.clouds) == 1
+    vertices = scene.world.meshes[0].vertices
+    np.testing.assert_allclose([vertices.min(axis=0), vertices.max(axis=0)], [[2, -1, 0], [3, 1, 1]], atol=1e-12)
+    np.testing.assert_array_equal(scene.world.clouds[0].points, [[4.0, 0.0, 4.0], [4.0, 0.5, 4.0]])
     assert len(make_observer(scene.world, 0).static_points) == 100 + 2
     with pytest.warns(UserWarning, match="inside the obstacle"):
         build("2.5,0,0.5")
     with pytest.warns(UserWarning, match="0.05 m from the obstacle"):
         build("4,0.5,4.05")
     out = tmp_path / "rec"
-    argv = ["--obstacles", str(table), str(scan), "--goal", "4,0,2", "--voxel", "0.1", "--max-steps", "1"]
+    with pytest.raises(ValueError, match="2 axes for 3 obstacle files"):
+        custom.build(EpisodeSettings("custom", 4, 0, options=(
+            ("obstacles", os.pathsep.join([str(table), str(scan), str(scan)])), ("up", "y,z"),
+            ("goal_position", "4,0,2"))))
+    argv = ["--obstacles", str(table), str(scan), "--up", "y", "z", "--goal", "4,0,2", "--voxel", "0.1",
+            "--max-steps", "1"]
     assert exit_status(custom.main, argv + ["--out", str(out), "--formats", "mcap"]) == 0
     run = load_run(out.with_suffix(".mcap"))
     assert ["obstacles", os.pathsep.join([str(table), str(scan)])] in run.meta["settings"]["options"]
+    assert ["up", "y,z"] in run.meta["settings"]["options"]
     assert run.meta["world"]["cloud_voxel"] == 0.1 and len(run.meta["world"]["meshes"]) == 1
 
 
