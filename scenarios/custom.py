@@ -102,12 +102,13 @@ def warn_of_the_goal(scene: Scene, named: str) -> None:
     touch it); ``make_scene`` warns of one beyond the robot's length."""
     goal = scene.goal[None]
     meshes = scene.world.meshes
-    inside = any(mesh.closed and bool(mesh.index.inside(goal)[0]) for mesh in meshes)
+    inside = [mesh for mesh in meshes if mesh.closed and bool(mesh.index.inside(goal)[0])]
     near = min([float(np.linalg.norm(np.asarray(cloud.points) - goal, axis=-1).min()) for cloud in scene.world.clouds]
                + [float(mesh.index.distance(goal)[0][0]) for mesh in meshes])
     tip = float(np.atleast_1d(scene.spec.radius)[-1])
     if inside:
-        warnings.warn(GoalWarning(f"the goal {named} lies inside the obstacle: it cannot be reached"), stacklevel=3)
+        warnings.warn(GoalWarning(f"the goal {named} lies inside the obstacle {Path(inside[0].name).name}: it cannot "
+                                  "be reached"), stacklevel=3)
     elif near + scene.tolerance < tip:
         warnings.warn(GoalWarning(f"the goal {named} lies {near:.2f} m from the obstacle: the robot's tip, of radius "
                                   f"{tip:.2f} m, cannot come within the goal tolerance of {scene.tolerance:.2f} m "

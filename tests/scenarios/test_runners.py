@@ -158,7 +158,7 @@ def test_custom_runner_takes_several_files_meshes_and_clouds_together(tmp_path, 
     np.testing.assert_allclose([vertices.min(axis=0), vertices.max(axis=0)], [[2, -1, 0], [3, 1, 1]], atol=1e-12)
     np.testing.assert_array_equal(scene.world.clouds[0].points, [[4.0, 0.0, 4.0], [4.0, 0.5, 4.0]])
     assert len(make_observer(scene.world, 0).static_points) == 100 + 2
-    with pytest.warns(UserWarning, match="inside the obstacle"):
+    with pytest.warns(UserWarning, match="inside the obstacle table.glb"):
         build("2.5,0,0.5")
     with pytest.warns(UserWarning, match="0.05 m from the obstacle"):
         build("4,0.5,4.05")
