@@ -2,22 +2,25 @@
 
 Each obstacle is read by ``scenarios.obstacle_file.load_obstacle`` (trimesh: .stl .obj
 .ply .off .glb ...; a .ply without faces, a PCL .pcd, .xyz or .npy is a bare point
-cloud), its ``--up`` axis (one for all files, or one each) turned to +z and shifted by
-``--offset``. Mesh surfaces are observed at ``--density`` points per square metre, by
-default the confined worlds' (``scenarios.solids.DENSITY``), at which an opening the
-robot fits through is wider than the holes between the samples; a cloud's points are
-observed as they are, or one per cube of ``--voxel`` m (a dense scan thinned; the judge
-keeps every point). The robot's base is the origin, its first tangent +z (it starts
-straight up, 2 m per link). A goal that no motion reaches (beyond the robot's length,
-inside an obstacle, or too near one for the tip) is warned of. A world observed at more
-than ``scenarios.observe.MAX_OBSERVED`` points is refused (coordinates are metres: a
-file in millimetres is a million times too large in area).
+cloud), scaled from its ``--units`` to metres, its ``--up`` axis turned to +z (each one
+for all files, or one per file) and shifted by ``--offset``. Mesh surfaces are observed
+at ``--density`` points per square metre, by default the confined worlds'
+(``scenarios.solids.DENSITY``), at which an opening the robot fits through is wider than
+the holes between the samples; a cloud's points are observed as they are, or one per
+cube of ``--voxel`` m (a dense scan thinned; the judge keeps every point). The robot's
+base is the origin, its first tangent +z (it starts straight up, 2 m per link). A goal
+that no motion reaches (beyond the robot's length, inside an obstacle, or too near one
+for the tip) is warned of. A world observed at more than
+``scenarios.observe.MAX_OBSERVED`` points is refused (a file in millimetres read as
+metres is a million times too large in area).
 
     python -m scenarios.custom --obstacles part.stl --offset 3,0,2 --goal 4,0,4
     python -m scenarios.custom --obstacles table.glb scan.pcd --up y z --goal 4,0,1
+    python -m scenarios.custom --obstacles bracket_mm.stl --units mm --goal 4,0,4
 
 Scenario options (kept in the run's settings): obstacles (absolute paths joined by
-``os.pathsep``), goal_position, offset, up (axes joined by commas), density, tolerance, voxel.
+``os.pathsep``), goal_position, offset, up and units (one per file, or one, joined by
+commas), density, tolerance, voxel.
 
 The controller is the one every world gets (``ncedf.presets``): with
 ``--controller ours`` it closes the observed cloud's clusters where every still
@@ -38,13 +41,13 @@ from scenarios.cli import base_settings, make_parser, run_cli
 from scenarios.episode import (EpisodeSettings, GoalWarning, Scene, make_scene, option_positive, option_vector,
                                require_fixed_goal, scenario_options)
 from scenarios.observe import MAX_OBSERVED, observed_cloud
-from scenarios.obstacle_file import UP, load_obstacle
+from scenarios.obstacle_file import UNITS, UP, load_obstacle
 from scenarios.solids import DENSITY
 from scenarios.world import CloudObstacle, World
 
 TOLERANCE = 0.2
 MAX_STEPS = 300
-OPTIONS = ("obstacles", "goal_position", "offset", "up", "density", "tolerance", "voxel")
+OPTIONS = ("obstacles", "goal_position", "offset", "up", "units", "density", "tolerance", "voxel")
 
 
 def build(settings: EpisodeSettings) -> Scene:
@@ -60,22 +63,30 @@ def build(settings: EpisodeSettings) -> Scene:
     tolerance = option_positive("tolerance", options.get("tolerance", str(TOLERANCE)))
     voxel = option_positive("voxel", options["voxel"]) if "voxel" in options else None
     paths = options["obstacles"].split(os.pathsep)
-    ups = options.get("up", "z").split(",")
-    if len(ups) not in (1, len(paths)):
-        raise ValueError(f"up {options['up']!r}: {len(ups)} axes for {len(paths)} obstacle files; give one for "
-                         "every file or one per file")
-    world = load_world(paths, offset, ups * (len(paths) // len(ups)), density, voxel)
+    frames = list(zip(per_file(options, "up", "z", len(paths)), per_file(options, "units", "m", len(paths))))
+    world = load_world(paths, offset, frames, density, voxel)
     scene = make_scene(settings, world, goal, tolerance, MAX_STEPS)
     warn_of_the_goal(scene, options["goal_position"])
     return scene
 
 
-def load_world(paths: list[str], offset, ups: list[str], density: float, voxel: float | None) -> World:
-    """The world of the obstacle files (``load_obstacle`` with ``offset`` and its up axis), observed
-    at ``density`` (meshes) and ``voxel`` (clouds); ValueError where ``voxel`` has no cloud to thin or
-    the world would be observed at more than ``MAX_OBSERVED`` points (a file in millimetres read as
-    metres is a million times too large in area)."""
-    obstacles = [load_obstacle(path, offset, up) for path, up in zip(paths, ups)]
+def per_file(options: dict[str, str], name: str, default: str, files: int) -> list[str]:
+    """The option's comma-separated values, one for each of the ``files``: one for every file, or
+    one per file; ValueError for another count."""
+    values = options.get(name, default).split(",")
+    if len(values) not in (1, files):
+        raise ValueError(f"{name} {options[name]!r}: {len(values)} values for {files} obstacle files; give one for "
+                         "every file or one per file")
+    return values * (files // len(values))
+
+
+def load_world(paths: list[str], offset, frames: list[tuple[str, str]], density: float,
+               voxel: float | None) -> World:
+    """The world of the obstacle files (``load_obstacle`` with ``offset`` and each file's up axis and
+    units, ``frames``), observed at ``density`` (meshes) and ``voxel`` (clouds); ValueError where
+    ``voxel`` has no cloud to thin or the world would be observed at more than ``MAX_OBSERVED``
+    points (a file in millimetres read as metres is a million times too large in area)."""
+    obstacles = [load_obstacle(path, offset, up, units) for path, (up, units) in zip(paths, frames)]
     clouds = tuple(o for o in obstacles if isinstance(o, CloudObstacle))
     world = World(meshes=tuple(o for o in obstacles if not isinstance(o, CloudObstacle)), clouds=clouds,
                   density=density, cloud_voxel=voxel)
@@ -85,8 +96,8 @@ def load_world(paths: list[str], offset, ups: list[str], density: float, voxel: 
     area = sum(mesh.area for mesh in world.meshes)
     if area * density > MAX_OBSERVED:  # in floats: a huge density overflows an int
         raise ValueError(f"{named}: {area:.4g} m^2 of surface at {density:g} points per m^2 is {area * density:.4g} "
-                         f"observed points, more than {MAX_OBSERVED}: coordinates are read as metres (is the file "
-                         "in millimetres?); else lower --density")
+                         f"observed points, more than {MAX_OBSERVED}: is a file in millimetres? (give --units mm); "
+                         "else lower --density")
     points = sum(len(observed_cloud(cloud.points, voxel)) for cloud in clouds)
     if points + area * density > MAX_OBSERVED:
         thinned = "" if voxel is None else f" at --voxel {voxel:g}"
@@ -125,6 +136,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--up", choices=tuple(UP), default=["z"], metavar="AXIS", nargs="+",
                         help=f"up axis turned to +z, of every file or of each: {', '.join(UP)} (glTF: y; "
                              "default z)")
+    parser.add_argument("--units", choices=tuple(UNITS), default=["m"], metavar="U", nargs="+",
+                        help=f"length unit of every file or each: {', '.join(UNITS)} (default m)")
     parser.add_argument("--density", default=str(DENSITY),
                         help=f"observed points per square metre of mesh surface (default {DENSITY})")
     parser.add_argument("--tolerance", default=str(TOLERANCE), help=f"goal tolerance, m (default {TOLERANCE})")
@@ -138,7 +151,8 @@ def main(argv: list[str] | None = None) -> int:
             raise ValueError(f"obstacle file {joined[0]!r}: a path with {os.pathsep!r} cannot be kept in the run's "
                              "settings, which join the files' paths with it; rename it")
         options = {"obstacles": os.pathsep.join(paths), "goal_position": args.goal, "offset": args.offset,
-                   "up": ",".join(args.up), "density": args.density, "tolerance": args.tolerance}
+                   "up": ",".join(args.up), "units": ",".join(args.units), "density": args.density,
+                   "tolerance": args.tolerance}
         if args.voxel is not None:
             options["voxel"] = args.voxel
         return base_settings("custom", args, options=tuple(options.items()))

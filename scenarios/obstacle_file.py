@@ -23,9 +23,14 @@ UP = {"z": np.eye(3), "-z": np.diag([1.0, -1.0, -1.0]),
       "x": np.array([[0.0, 0, -1], [0, 1, 0], [1, 0, 0]]), "-x": np.array([[0.0, 0, 1], [0, 1, 0], [-1, 0, 0]])}
 
 
-def load_obstacle(path, offset=(0.0, 0.0, 0.0), up: str = "z") -> MeshObstacle | CloudObstacle:
-    """Read an obstacle from a user's file, turn its ``up`` axis (a key of ``UP``: glTF files are
-    +y up by their standard) to +z, and shift it by ``offset`` (3,) m.
+#: Metres per unit of length a file may be written in (CAD meshes are often in millimetres).
+UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254}
+
+
+def load_obstacle(path, offset=(0.0, 0.0, 0.0), up: str = "z", units: str = "m") -> MeshObstacle | CloudObstacle:
+    """Read an obstacle from a user's file written in ``units`` (a key of ``UNITS``), turn its ``up``
+    axis (a key of ``UP``: glTF files are +y up by their standard) to +z, and shift it by ``offset``
+    (3,) m.
 
     Meshes (.stl .obj .ply .off .glb ...) are read with trimesh (a scene is
     merged into one mesh) -> :class:`MeshObstacle`; a .ply without faces, a
@@ -40,8 +45,10 @@ def load_obstacle(path, offset=(0.0, 0.0, 0.0), up: str = "z") -> MeshObstacle |
     shift = np.asarray(finite_vector(offset, "offset", "load_obstacle"))
     if up not in UP:
         raise WorldError(f"up axis {up!r}: choose one of {', '.join(UP)}")
+    if units not in UNITS:
+        raise WorldError(f"units {units!r}: choose one of {', '.join(UNITS)}")
     column = np.argmax(np.abs(UP[up]), axis=1)  # each turn is a signed permutation: no inf * 0 of a product
-    sign = UP[up][np.arange(3), column]
+    sign = UP[up][np.arange(3), column] * UNITS[units]
 
     def place(points: np.ndarray) -> np.ndarray:
         return points[:, column] * sign + shift

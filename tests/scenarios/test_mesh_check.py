@@ -110,6 +110,8 @@ def test_each_up_axis_is_turned_to_plus_z_by_a_rotation_and_a_glTF_box_stands_wh
     box = trimesh.creation.box(extents=(1.0, 3.0, 2.0)).apply_translation((1.0, 5.0, 4.0))
     box.export(tmp_path / "crate.glb")
     mesh = load_obstacle(tmp_path / "crate.glb", offset=(0.0, 0.0, 0.5), up="y")
+    in_cm = load_obstacle(tmp_path / "crate.glb", offset=(0.0, 0.0, 0.5), up="y", units="cm")
+    np.testing.assert_allclose(in_cm.vertices, 0.01 * (mesh.vertices - [0, 0, 0.5]) + [0, 0, 0.5], atol=1e-12)
     lower, upper = mesh.vertices.min(axis=0), mesh.vertices.max(axis=0)
     np.testing.assert_allclose((lower + upper) / 2, [1.0, -4.0, 5.5], atol=1e-6)  # +z of the file is -y here
     np.testing.assert_allclose(upper - lower, [1.0, 2.0, 3.0], atol=1e-6)

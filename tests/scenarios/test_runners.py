@@ -126,6 +126,9 @@ def test_custom_runner_names_a_bad_obstacle_file_or_goal(tmp_path, capsys):
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and named in err
     assert not (tmp_path / "new").exists()
+    scene = custom.build(EpisodeSettings("custom", 4, 0, options=(
+        ("obstacles", str(part)), ("goal_position", "4,0,4"), ("units", "mm"))))
+    np.testing.assert_allclose(scene.world.meshes[0].area, 0.06)  # the 10 cm cube read in millimetres
 
 
 def test_custom_runner_observes_a_dense_cloud_thinned_and_judges_every_point(tmp_path):
@@ -162,7 +165,7 @@ def test_custom_runner_takes_several_files_meshes_and_clouds_together(tmp_path, 
         build("2.5,0,0.5")
     with pytest.warns(UserWarning, match="0.05 m from the obstacle"):
         build("4,0.5,4.05")
-    with pytest.raises(ValueError, match="2 axes for 3 obstacle files"):
+    with pytest.raises(ValueError, match="2 values for 3 obstacle files"):
         custom.build(EpisodeSettings("custom", 4, 0, options=(
             ("obstacles", os.pathsep.join([str(table), str(scan), str(scan)])), ("up", "y,z"),
             ("goal_position", "4,0,2"))))
