@@ -17,9 +17,10 @@ metres is a million times too large in area).
     python -m scenarios.custom --obstacles part.stl --offset 3,0,2 --goal 4,0,4
     python -m scenarios.custom --obstacles table.glb scan.pcd --up y z --goal 4,0,1
     python -m scenarios.custom --obstacles bracket_mm.stl --units mm --goal 4,0,4
+    python -m scenarios.custom --obstacles wall.stl --goal 4.2,0,3.5 --approach 1,0,0
 
 Scenario options (kept in the run's settings): obstacles (absolute paths joined by
-``os.pathsep``), goal_position, offset, up and units (one per file, or one, joined by
+``os.pathsep``), goal_position, approach, offset, up and units (one per file, or one, joined by
 commas), density, tolerance, voxel.
 
 The controller is the one every world gets (``ncedf.presets``): with
@@ -30,6 +31,7 @@ where one is not.
 
 from __future__ import annotations
 
+import math
 import os
 import warnings
 from pathlib import Path
@@ -38,8 +40,8 @@ import numpy as np
 
 from recorder.cli import path_text
 from scenarios.cli import base_settings, make_parser, run_cli
-from scenarios.episode import (EpisodeSettings, GoalWarning, Scene, make_scene, option_positive, option_vector,
-                               require_fixed_goal, scenario_options)
+from scenarios.episode import (ANGLE_TOLERANCE, EpisodeSettings, GoalWarning, Scene, make_scene, option_positive,
+                               option_vector, require_fixed_goal, scenario_options)
 from scenarios.observe import MAX_OBSERVED, observed_cloud
 from scenarios.obstacle_file import UNITS, UP, load_obstacle
 from scenarios.solids import DENSITY
@@ -47,7 +49,7 @@ from scenarios.world import CloudObstacle, World
 
 TOLERANCE = 0.2
 MAX_STEPS = 300
-OPTIONS = ("obstacles", "goal_position", "offset", "up", "units", "density", "tolerance", "voxel")
+OPTIONS = ("obstacles", "goal_position", "approach", "offset", "up", "units", "density", "tolerance", "voxel")
 
 
 def build(settings: EpisodeSettings) -> Scene:
@@ -62,12 +64,30 @@ def build(settings: EpisodeSettings) -> Scene:
     density = option_positive("density", options.get("density", str(DENSITY)))
     tolerance = option_positive("tolerance", options.get("tolerance", str(TOLERANCE)))
     voxel = option_positive("voxel", options["voxel"]) if "voxel" in options else None
+    if "approach" in options:
+        goal = pose_along(goal, option_vector("approach", options["approach"]))
     paths = options["obstacles"].split(os.pathsep)
     frames = list(zip(per_file(options, "up", "z", len(paths)), per_file(options, "units", "m", len(paths))))
     world = load_world(paths, offset, frames, density, voxel)
     scene = make_scene(settings, world, goal, tolerance, MAX_STEPS)
     warn_of_the_goal(scene, options["goal_position"])
     return scene
+
+
+def pose_along(position, direction) -> np.ndarray:
+    """The (4, 4) pose at ``position`` (3,) m whose z axis, the tip's tangent, points along
+    ``direction`` (3,): the least rotation from +z (Rodrigues; half a turn about x for -z), the tip
+    frame of a robot bent in the plane of +z and the direction; ValueError for a zero direction."""
+    norm = float(np.linalg.norm(direction))
+    if not norm > 0:
+        raise ValueError(f"approach {tuple(direction)} has no direction")
+    a, z = np.asarray(direction, np.float64) / norm, np.array([0.0, 0.0, 1.0])
+    v, c = np.cross(z, a), float(z @ a)
+    cross = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+    pose = np.eye(4)
+    pose[:3, :3] = np.diag([1.0, -1.0, -1.0]) if c < -1.0 + 1e-12 else np.eye(3) + cross + cross @ cross / (1.0 + c)
+    pose[:3, 3] = position
+    return pose
 
 
 def per_file(options: dict[str, str], name: str, default: str, files: int) -> list[str]:
@@ -111,7 +131,7 @@ def warn_of_the_goal(scene: Scene, named: str) -> None:
     """Warn of a goal (``named`` as the user gave it) that no motion reaches: inside a (closed)
     obstacle, or nearer to one than the tip's radius less the goal tolerance (the tip's end disk would
     touch it); ``make_scene`` warns of one beyond the robot's length."""
-    goal = scene.goal[None]
+    goal = (scene.goal[:3, 3] if scene.goal.shape == (4, 4) else scene.goal)[None]
     meshes = scene.world.meshes
     inside = [mesh for mesh in meshes if mesh.closed and bool(mesh.index.inside(goal)[0])]
     near = min([float(np.linalg.norm(np.asarray(cloud.points) - goal, axis=-1).min()) for cloud in scene.world.clouds]
@@ -131,6 +151,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--obstacles", required=True, type=path_text, metavar="FILE", nargs="+",
                         help="obstacle meshes or point clouds, m (one file or more)")
     parser.add_argument("--goal", required=True, metavar="X,Y,Z", help="goal position, m")
+    parser.add_argument("--approach", metavar="X,Y,Z",
+                        help="the tip's direction at the goal (a pose goal: arrive along it, within "
+                             f"{math.degrees(ANGLE_TOLERANCE):g} degrees)")
     parser.add_argument("--offset", default="0,0,0", metavar="X,Y,Z",
                         help="shift of the obstacles, m (default 0,0,0)")
     parser.add_argument("--up", choices=tuple(UP), default=["z"], metavar="AXIS", nargs="+",
@@ -153,8 +176,9 @@ def main(argv: list[str] | None = None) -> int:
         options = {"obstacles": os.pathsep.join(paths), "goal_position": args.goal, "offset": args.offset,
                    "up": ",".join(args.up), "units": ",".join(args.units), "density": args.density,
                    "tolerance": args.tolerance}
-        if args.voxel is not None:
-            options["voxel"] = args.voxel
+        for name in ("voxel", "approach"):
+            if getattr(args, name) is not None:
+                options[name] = getattr(args, name)
         return base_settings("custom", args, options=tuple(options.items()))
 
     return run_cli(parser, argv, settings)

@@ -180,6 +180,25 @@ def test_custom_runner_takes_several_files_meshes_and_clouds_together(tmp_path, 
     assert describe_world(world)["cloud_voxel"] == 0.1 and len(describe_world(world)["meshes"]) == 1
 
 
+def test_an_approach_makes_a_pose_goal_whose_tangent_points_along_it(tmp_path):
+    """The least rotation from +z: for +x the charging port's (a robot bent in the xz-plane); its z
+    axis the direction for any other, -z included; the scene judges the pose's approach angle."""
+    np.testing.assert_allclose(custom.pose_along((1, 2, 3), (2, 0, 0))[:3, :3], charging.APPROACH_ROTATION, atol=1e-15)
+    for direction in [(0, 0, -1), (0, 1, 0), (1, -2, 0.5), (-1, 0, -1e-9)]:
+        pose = custom.pose_along((1, 2, 3), direction)
+        turn = pose[:3, :3]
+        np.testing.assert_allclose(turn[:, 2], np.asarray(direction) / np.linalg.norm(direction), atol=1e-12)
+        np.testing.assert_allclose(turn @ turn.T, np.eye(3), atol=1e-12)
+        assert np.linalg.det(turn) == pytest.approx(1.0) and list(pose[:3, 3]) == [1, 2, 3]
+    with pytest.raises(ValueError, match="no direction"):
+        custom.pose_along((1, 2, 3), (0, 0, 0))
+    cloud = tmp_path / "cloud.npy"
+    np.save(cloud, np.array([[3.0, 0.0, 3.0]]))
+    scene = custom.build(EpisodeSettings("custom", 4, 0, options=(
+        ("obstacles", str(cloud)), ("goal_position", "4,0,4"), ("approach", "1,0,0"))))
+    assert scene.goal.shape == (4, 4) and scene.angle_tolerance == episode_mod.ANGLE_TOLERANCE
+
+
 def test_custom_runner_warns_of_a_goal_no_motion_reaches(tmp_path):
     """Beyond the robot's length (8 m with 4 links, plus the tolerance), inside a closed mesh, or too near
     a point for the tip's radius (0.2 m) less the tolerance; none for goals that pass each test."""
